@@ -1,0 +1,31 @@
+"""A Stage-like 2.5D multi-robot simulator (thesis 2.2.1, 3.4.2, appendix A.1, A.4-A.6).
+
+A library with no dependency on the rest of the project: bitmap floorplans, pymunk bodies for
+robots and objects, differential-drive position models with drifting odometry, laser and sonar
+rangers, blobfinders and grippers computed for all robots in one vectorised pass per tick, a
+fixed-step clock, and loaders for Stage ``.world`` files and a YAML world format.
+"""
+
+from .errors import ModelError, SimulatorError, WorldFileError
+from .spec import (
+    BlobfinderSpec,
+    FloorplanSpec,
+    GripperSpec,
+    ModelSpec,
+    RangerSensorSpec,
+    RangerSpec,
+    WorldSpec,
+)
+
+__all__ = [
+    "BlobfinderSpec",
+    "FloorplanSpec",
+    "GripperSpec",
+    "ModelError",
+    "ModelSpec",
+    "RangerSensorSpec",
+    "RangerSpec",
+    "SimulatorError",
+    "WorldFileError",
+    "WorldSpec",
+]

@@ -1,0 +1,210 @@
+"""World description: the parsed, validated form of a world file.
+
+Both world-file front ends (Stage ``.world`` syntax in :mod:`simulator.stageworld` and the YAML
+format in :mod:`simulator.yamlworld`) produce a :class:`WorldSpec`; :class:`simulator.world.World`
+is built from it and never sees file syntax. Everything is in SI units: metres and radians, poses
+as ``(x, y, yaw)`` (Stage writes ``[x y z a]`` with degrees; the parsers convert).
+
+The model kinds follow Stage (thesis appendix A.1, A.5, A.6): a *position* model is a robot base
+with a differential drive; *ranger*, *blobfinder* and *gripper* models are devices mounted on it;
+any other *model* is a passive body (a blob, a box of furniture) that robots can push, see or grip.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = [
+    "BlobfinderSpec",
+    "FloorplanSpec",
+    "GripperSpec",
+    "ModelSpec",
+    "RangerSensorSpec",
+    "RangerSpec",
+    "WorldSpec",
+    "NAMED_COLORS",
+    "parse_color",
+]
+
+Pose = tuple[float, float, float]
+
+
+@dataclass
+class RangerSensorSpec:
+    """One transducer group of a ranger: a laser has one with many samples, a sonar ring one
+    per transducer with ``samples == 1`` and ``fov`` the cone width."""
+
+    pose: Pose = (0.0, 0.0, 0.0)  # in the robot frame: m, m, rad
+    range_min: float = 0.0  # m
+    range_max: float = 5.0  # m
+    fov: float = math.radians(180.0)  # rad; for a single-sample sensor: the cone width
+    samples: int = 180
+    noise: float = 0.0  # standard deviation of range noise, m
+
+
+@dataclass
+class RangerSpec:
+    """A ranger device (Stage ``ranger``): a list of sensors read together as one scan.
+
+    ``kind`` is ``"laser"`` when it has one multi-sample sensor, ``"sonar"`` when it has one
+    single-sample cone sensor per transducer; the parsers decide, a world may say so explicitly.
+    """
+
+    name: str = "ranger"
+    kind: str = "laser"  # "laser" | "sonar"
+    sensors: list[RangerSensorSpec] = field(default_factory=list)
+    pose: Pose = (0.0, 0.0, 0.0)  # mount pose of the device on its robot (sensors are relative to it)
+    interval: float = 0.1  # s between scans (Stage's update interval of the ranger)
+
+
+@dataclass
+class BlobfinderSpec:
+    """A colour-blob camera (Stage ``blobfinder``, thesis A.1)."""
+
+    name: str = "blobfinder"
+    pose: Pose = (0.0, 0.0, 0.0)
+    colors: list[tuple[int, int, int]] = field(default_factory=list)  # channels looked for
+    fov: float = math.radians(60.0)  # rad
+    range_max: float = 8.0  # m
+    image: tuple[int, int] = (80, 60)  # width, height in pixels
+    interval: float = 0.1
+
+
+@dataclass
+class GripperSpec:
+    """A two-paddle gripper with a lift and break beams (Stage ``gripper``, Player's gripper)."""
+
+    name: str = "gripper"
+    pose: Pose = (0.23, 0.0, 0.0)  # centre of the paddles in the robot frame
+    size: tuple[float, float] = (0.1, 0.3)  # depth (x) and width (y) of the space between paddles
+    paddle_time: float = 1.0  # s to open or close the paddles
+    lift_time: float = 1.0  # s to raise or lower the lift
+    interval: float = 0.1
+
+
+@dataclass
+class ModelSpec:
+    """A body in the world: a robot when ``position`` is true, otherwise a passive object."""
+
+    name: str
+    type_name: str = "model"  # the Stage type or macro it was made from, e.g. "fancypioneer2dx"
+    position: bool = False  # true: a robot base with a differential drive (Stage ``position``)
+    pose: Pose = (0.0, 0.0, 0.0)
+    size: tuple[float, float, float] = (0.44, 0.38, 0.22)  # m; Pioneer 2DX by default
+    color: tuple[int, int, int] = (255, 0, 0)
+    mass: float = 10.0  # kg
+    # What other sensors see of this model (Stage's *_return flags).
+    obstacle_return: bool = True
+    laser_return: bool = True  # Stage 3 name; Stage 4's ranger_return maps here too
+    blob_return: bool = True
+    gripper_return: bool = False
+    # Position model (robots only).
+    drive: str = "diff"
+    max_speed: tuple[float, float] = (1.0, math.radians(90.0))  # |v| m/s, |w| rad/s
+    max_accel: tuple[float, float] = (1.0, math.radians(180.0))  # m/s^2, rad/s^2
+    # Odometry error: a per-robot scale bias drawn uniformly in [-e, e] for (x, y, yaw) at start,
+    # as Stage's ``odom_error``, plus white noise of std ``odom_noise`` (fraction of motion).
+    odom_error: tuple[float, float, float] = (0.03, 0.03, 0.05)
+    odom_noise: tuple[float, float, float] = (0.01, 0.01, 0.02)
+    rangers: list[RangerSpec] = field(default_factory=list)
+    blobfinders: list[BlobfinderSpec] = field(default_factory=list)
+    grippers: list[GripperSpec] = field(default_factory=list)
+    source: str = ""  # "file:line" where it was declared, for messages
+
+
+@dataclass
+class FloorplanSpec:
+    """The static map: a bitmap where dark pixels are occupied.
+
+    Placement is either Stage's (``size`` in metres and the centre ``pose``) or the mapfile
+    driver's (``resolution`` in m/pixel and ``origin`` = world position of the bottom-left
+    corner, thesis appendix A.2). The parsers fill both ``resolution`` and ``origin``.
+    """
+
+    bitmap: Path
+    resolution: float  # m per pixel (square cells)
+    origin: tuple[float, float]  # world (x, y) of the bottom-left corner of the bitmap
+    size: tuple[float, float] | None = None  # m; when given, the bitmap is scaled to it
+    name: str = "floorplan"
+    threshold: float = 0.5  # a pixel darker than this fraction of full brightness is occupied
+
+
+@dataclass
+class WorldSpec:
+    """A whole world: floorplan, robots and objects, clock settings."""
+
+    floorplan: FloorplanSpec | None = None
+    models: list[ModelSpec] = field(default_factory=list)
+    interval_sim: float = 0.1  # s per simulation step (Stage ``interval_sim``, in ms in files)
+    speedup: float = 1.0  # real-time factor when paced; <= 0 or inf means as fast as possible
+    seed: int = 0
+    source: str = ""  # path of the file this came from
+    warnings: list[str] = field(default_factory=list)  # "file:line: ..." messages from parsing
+
+    def robots(self) -> list[ModelSpec]:
+        return [m for m in self.models if m.position]
+
+    def model(self, name: str) -> ModelSpec:
+        for m in self.models:
+            if m.name == name:
+                return m
+        raise KeyError(name)
+
+
+# A small table of X11 colour names used by Stage worlds (Stage looks names up in rgb.txt).
+NAMED_COLORS: dict[str, tuple[int, int, int]] = {
+    "black": (0, 0, 0),
+    "white": (255, 255, 255),
+    "red": (255, 0, 0),
+    "green": (0, 255, 0),
+    "blue": (0, 0, 255),
+    "yellow": (255, 255, 0),
+    "cyan": (0, 255, 255),
+    "magenta": (255, 0, 255),
+    "orange": (255, 165, 0),
+    "purple": (160, 32, 240),
+    "gray": (190, 190, 190),
+    "grey": (190, 190, 190),
+    "dark gray": (169, 169, 169),
+    "darkgray": (169, 169, 169),
+    "light gray": (211, 211, 211),
+    "lightgray": (211, 211, 211),
+    "gray30": (77, 77, 77),
+    "gray50": (127, 127, 127),
+    "gray70": (179, 179, 179),
+    "gray90": (229, 229, 229),
+    "brown": (165, 42, 42),
+    "pink": (255, 192, 203),
+    "dark blue": (0, 0, 139),
+    "darkblue": (0, 0, 139),
+    "dark green": (0, 100, 0),
+    "darkgreen": (0, 100, 0),
+    "dark red": (139, 0, 0),
+    "darkred": (139, 0, 0),
+    "navy": (0, 0, 128),
+    "orchid": (218, 112, 214),
+    "gold": (255, 215, 0),
+}
+
+
+def parse_color(value: str | tuple | list) -> tuple[int, int, int]:
+    """A colour from a name (``"green"``), ``#rrggbb``, or an ``[r g b (a)]`` list of 0..1 floats
+    (Stage's ``color_rgba``) or 0..255 ints. Raises ``ValueError`` with the value on failure."""
+    if isinstance(value, str):
+        v = value.strip().lower()
+        if v in NAMED_COLORS:
+            return NAMED_COLORS[v]
+        if v.startswith("#") and len(v) == 7:
+            try:
+                return (int(v[1:3], 16), int(v[3:5], 16), int(v[5:7], 16))
+            except ValueError:
+                pass
+        raise ValueError(f"unknown colour {value!r} (use a name such as 'green', '#00ff00' or [r g b])")
+    vals = [float(x) for x in value]
+    if len(vals) not in (3, 4):
+        raise ValueError(f"colour {list(value)!r} needs 3 or 4 numbers")
+    if all(0.0 <= x <= 1.0 for x in vals[:3]):
+        return tuple(int(round(x * 255)) for x in vals[:3])  # type: ignore[return-value]
+    return tuple(int(round(max(0.0, min(255.0, x)))) for x in vals[:3])  # type: ignore[return-value]
