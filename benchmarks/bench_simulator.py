@@ -1,0 +1,174 @@
+"""Simulator throughput: N Pioneers with an URG-04LX laser at 10 Hz in the 128 m swarm arena.
+
+For each N (default 10, 100, 300, 1000) a child process builds the arena world with N robots on
+random free poses, lets each wander with the reactive laser controller of
+:mod:`simulator.controllers`, runs ``--sim-seconds`` of
+simulated time as fast as possible, and reports simulated seconds per wall second (the real-time
+factor), laser scans per wall second, and its peak resident memory. Each N runs in its own
+process so peak memory is its own.
+
+Baseline in the same run: the pure-numpy reference ray caster
+(:func:`simulator.raycast.cast_fans_numpy`) casts one tick of the same lasers, and the compiled
+caster's time for that tick is reported as a ratio against it. The C++ Stage figures on this
+machine kind (issue text: 100 robots 2.7x, 300 0.9x, 1000 0.21x real time) are printed beside ours
+as ``vs_stage``.
+
+Output: one parseable line per figure, ``bench=simulator key=value ...``.
+Usage: ``python benchmarks/bench_simulator.py [--robots 10,100,300,1000] [--sim-seconds 60]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+STAGE_RTF = {100: 2.7, 300: 0.9, 1000: 0.21}  # C++ Stage, same robots/lasers/arena, this machine kind
+
+
+def build_world(n: int, seed: int):
+    import numpy as np
+    from simulator.presets import urg04lx
+
+    from simulator.spec import FloorplanSpec, ModelSpec, WorldSpec
+    from simulator.world import World
+
+    fp = FloorplanSpec(bitmap=ROOT / "maps" / "arena.png", resolution=0.1, origin=(-64.0, -64.0))
+    probe = World(WorldSpec(floorplan=fp), seed=seed)
+    grid = probe.grid
+    rng = np.random.default_rng(seed)
+    poses: list[tuple[float, float, float]] = []
+    pts = np.empty((0, 2))
+    while len(poses) < n:
+        cand = rng.uniform(-62, 62, size=(4 * n, 2))
+        ok = grid.clearance(cand[:, 0], cand[:, 1]) > 0.6
+        for x, y in cand[ok]:
+            if pts.size and np.min(np.hypot(pts[:, 0] - x, pts[:, 1] - y)) < 0.8:
+                continue
+            poses.append((float(x), float(y), float(rng.uniform(-math.pi, math.pi))))
+            pts = np.vstack([pts, [x, y]])
+            if len(poses) == n:
+                break
+    models = [
+        ModelSpec(
+            name=f"r{i}",
+            position=True,
+            pose=p,
+            size=(0.44, 0.38, 0.22),
+            mass=23.0,
+            rangers=[urg04lx()],
+        )
+        for i, p in enumerate(poses)
+    ]
+    return World(WorldSpec(floorplan=fp, models=models, interval_sim=0.1, seed=seed), seed=seed)
+
+
+def child(n: int, sim_seconds: float, seed: int) -> dict:
+    import numpy as np
+
+    from simulator.clock import run
+    from simulator.controllers import wander
+    from simulator.raycast import cast_fans, cast_fans_numpy
+
+    t_build = time.perf_counter()
+    world = build_world(n, seed)
+    build_s = time.perf_counter() - t_build
+    world.step()  # compile/warm up
+    wander(world)
+    # One tick of the same lasers through the numpy reference and the compiled caster.
+    f = world._fans
+    pose = world._prev[f["robot"]]
+    c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+    fans = {
+        "x": pose[:, 0] + c * f["lx"] - s * f["ly"],
+        "y": pose[:, 1] + s * f["lx"] + c * f["ly"],
+        "th0": pose[:, 2] + f["lth"],
+        "dth": f["dth"],
+        "n": f["n"],
+        "rmax": f["rmax"],
+        "owner": f["uids"][f["robot"]],
+    }
+    circles = world._circle_index()
+    k = max(1, 2000 // max(n, 1))
+    t = time.perf_counter()
+    for _ in range(k):
+        cast_fans(world.grid, fans, circles)
+    jit_tick = (time.perf_counter() - t) / k
+    sub = min(n, 20)  # the numpy caster is memory hungry: time 20 robots and scale linearly
+    fsub = {key: v[:sub] for key, v in fans.items()}
+    t = time.perf_counter()
+    cast_fans_numpy(world.grid, fsub, circles)
+    numpy_tick = (time.perf_counter() - t) * n / sub
+
+    scans0 = world.steps
+    stats = run(world, sim_seconds, on_step=wander)
+    scans = (world.steps - scans0) * n
+    peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return {
+        "robots": n,
+        "sim_s": round(stats.sim_seconds, 2),
+        "wall_s": round(stats.wall_seconds, 3),
+        "rtf": round(stats.realtime_factor, 3),
+        "scans_per_s": round(scans / stats.wall_seconds, 1),
+        "peak_mb": round(peak_kb / 1024, 1),
+        "build_s": round(build_s, 2),
+        "caster_tick_ms": round(jit_tick * 1000, 3),
+        "numpy_tick_ms": round(numpy_tick * 1000, 1),
+        "caster_speedup_vs_numpy": round(numpy_tick / jit_tick, 1),
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--robots", default="10,100,300,1000", help="comma-separated robot counts")
+    ap.add_argument("--sim-seconds", type=float, default=60.0, help="simulated seconds per run")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child is not None:
+        print(json.dumps(child(args.child, args.sim_seconds, args.seed)))
+        return 0
+    counts = [int(x) for x in args.robots.split(",") if x.strip()]
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    for n in counts:
+        print(f"[bench] {n} robots, {args.sim_seconds:g} sim s ...", file=sys.stderr, flush=True)
+        out = subprocess.run(
+            [
+                sys.executable,
+                __file__,
+                "--child",
+                str(n),
+                "--sim-seconds",
+                str(args.sim_seconds),
+                "--seed",
+                str(args.seed),
+            ],
+            capture_output=True,
+            text=True,
+            env=env,
+        )
+        if out.returncode != 0:
+            print(f"bench=simulator robots={n} error={out.stderr.strip().splitlines()[-1:]}")
+            continue
+        r = json.loads(out.stdout.strip().splitlines()[-1])
+        stage = STAGE_RTF.get(n)
+        vs = f" vs_stage={r['rtf'] / stage:.1f}x" if stage else ""
+        print(
+            "bench=simulator "
+            + " ".join(f"{k}={v}" for k, v in r.items())
+            + f" target_rtf={'10' if n == 100 else '1' if n == 1000 else '-'}"
+            + vs,
+            flush=True,
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
