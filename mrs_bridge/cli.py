@@ -1,0 +1,164 @@
+"""``rsal serve CONFIG`` and ``rsal sim WORLD``: run a device server (registered as ``rsal``
+sub-commands through the ``rsal.commands`` entry points).
+
+``rsal serve`` runs the drivers of a TOML configuration (see :mod:`mrs_bridge.config`).
+``rsal sim`` is the shorthand of DESIGN "Processes": one server with the simulator in-process,
+a ``simulation`` driver on node ``sim``, the floorplan as ``sim:map:0`` and one ``sim`` driver per
+robot model, whose devices live on the node named after the model (``r0:position2d:0``...).
+Both stop cleanly on SIGTERM or Ctrl-C: motors stopped, tokens withdrawn, session closed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import signal
+import sys
+import time
+
+from rsal.transport import TransportArgs, add_transport_args, open_session
+
+from .config import ConfigError, DriverConfig, ServerConfig, load_config
+from .server import DeviceServer, ServerError
+
+__all__ = ["register_serve", "register_sim", "sim_config", "run_server"]
+
+log = logging.getLogger("mrs_bridge")
+
+
+def run_server(cfg: ServerConfig, args: argparse.Namespace, *, shared: dict | None = None) -> int:
+    """Open the session, start the drivers, serve until a signal, then shut down cleanly."""
+    import mrs_bridge.drivers  # noqa: F401  (registers the built-in drivers)
+
+    stop_requested: list[int] = []
+    server: DeviceServer | None = None
+
+    def on_signal(signum, frame):
+        stop_requested.append(signum)
+        if server is not None:
+            server.stop()
+
+    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        session = open_session(TransportArgs.from_namespace(args), server=True)
+    except ValueError as e:
+        print(f"rsal: {e}", file=sys.stderr)
+        return 1
+    server = DeviceServer(cfg, session, require_timeout=args.require_timeout, shared=shared)
+    if stop_requested:
+        server.stop()
+    try:
+        server.start()
+        n = len(server.devices)
+        print(f"[serve] {cfg.source or 'server'}: {len(cfg.drivers)} driver(s), {n} device(s) up", flush=True)
+        server.run()
+        return 0
+    except ConfigError as e:
+        print(f"rsal: {e}", file=sys.stderr)
+        return 1
+    except ServerError as e:
+        print(f"rsal: {e}", file=sys.stderr)
+        return 1
+    finally:
+        server.close()
+        try:
+            session.close()
+        except Exception:
+            pass
+        for sig, h in old.items():
+            signal.signal(sig, h)
+        log.info("server stopped")
+
+
+def _serve(args: argparse.Namespace) -> int:
+    try:
+        cfg = load_config(args.config_file, default_node=args.node)
+    except ConfigError as e:
+        print(f"rsal serve: {e}", file=sys.stderr)
+        return 1
+    return run_server(cfg, args)
+
+
+def sim_config(world, *, map_device: bool = True, source: str = "") -> ServerConfig:
+    """The server configuration of ``rsal sim`` for a loaded :class:`simulator.world.World`."""
+    from rsal.keys import DeviceAddr
+
+    def block(name, node, provides, **params):
+        return DriverConfig(name, [DeviceAddr(node, i, n) for i, n in provides], [], params, None,
+                            f"{source or 'sim'}: {name} {node}")
+
+    drivers = [block("simulation", "sim", [("simulation", 0)])]
+    if map_device and world.grid is not None:
+        drivers.append(block("simmap", "sim", [("map", 0)]))
+    for name in world.robot_names:
+        spec = world.model_spec(name)
+        prov = [("position2d", 0)]
+        prov += [("ranger", i) for i in range(len(spec.rangers))]
+        if any(r.kind == "sonar" for r in spec.rangers):
+            prov.append(("sonar", 0))
+        if any(r.kind != "sonar" for r in spec.rangers):
+            prov.append(("laser", 0))
+        prov += [("blobfinder", i) for i in range(len(spec.blobfinders))]
+        prov += [("gripper", i) for i in range(len(spec.grippers))]
+        prov.append(("power", 0))
+        drivers.append(block("sim", name, prov, model=name))
+    return ServerConfig(node="sim", drivers=drivers, source=source)
+
+
+def _sim(args: argparse.Namespace) -> int:
+    from simulator import SimulatorError
+    from simulator.loader import load_world
+    from simulator.world import World
+
+    try:
+        spec = load_world(args.world, seed=args.seed)
+        for w in spec.warnings:
+            print(f"rsal sim: warning: {w}", file=sys.stderr)
+        if args.fast:
+            spec.speedup = math.inf
+        elif args.speedup is not None:
+            spec.speedup = args.speedup
+        world = World(spec)
+    except SimulatorError as e:
+        print(f"rsal sim: {e}", file=sys.stderr)
+        return 1
+    cfg = sim_config(world, map_device=not args.no_map, source=str(args.world))
+    sp = "as fast as possible" if math.isinf(spec.speedup) else f"{spec.speedup:g}x real time"
+    print(f"[sim] {args.world}: {len(world.robot_names)} robots ({', '.join(world.robot_names)}), {sp}", flush=True)
+    t0 = time.monotonic()
+    rc = run_server(cfg, args, shared={"simulator.world": world})
+    wall = time.monotonic() - t0
+    print(f"[sim] summary: robots={len(world.robot_names)} sim_seconds={world.time:.1f} wall_seconds={wall:.1f} "
+          f"realtime_factor={world.time / wall if wall > 0 else 0:.2f}", flush=True)
+    return rc
+
+
+def _positive(text: str) -> float:
+    v = float(text)
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be positive")
+    return v
+
+
+def register_serve(sub) -> None:
+    p = sub.add_parser("serve", help="run a device server from a TOML driver configuration")
+    p.add_argument("config_file", metavar="CONFIG", help="TOML file of [[driver]] blocks (see docs/configuration.md)")
+    p.add_argument("--node", help="node name for devices written without one (overrides [server] node)")
+    p.add_argument("--require-timeout", type=_positive, default=30.0,
+                   help="seconds a driver waits for its required devices (default 30)")
+    add_transport_args(p)
+    p.set_defaults(func=_serve)
+
+
+def register_sim(sub) -> None:
+    p = sub.add_parser("sim", help="run the simulator with one device server for all its robots")
+    p.add_argument("world", metavar="WORLD", help="a Stage .world or YAML world file, e.g. maps/floor.world")
+    pace = p.add_mutually_exclusive_group()
+    pace.add_argument("--speedup", type=_positive, help="times real time (default: the world's)")
+    pace.add_argument("--fast", action="store_true", help="as fast as possible")
+    p.add_argument("--seed", type=int, help="random seed (default: the world's)")
+    p.add_argument("--no-map", action="store_true", help="do not serve the floorplan as sim:map:0")
+    p.add_argument("--require-timeout", type=_positive, default=30.0, help=argparse.SUPPRESS)
+    add_transport_args(p)
+    p.set_defaults(func=_sim)

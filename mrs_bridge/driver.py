@@ -1,0 +1,111 @@
+"""The driver contract of the device server (Player's ``Driver`` class, thesis 2.2.1, 3.3.2).
+
+A driver *provides* devices (addresses like ``r0:position2d:0``) and may *require* others, local
+or on another server. The server owns all Zenoh entities; a driver only implements:
+
+- ``setup()`` once its required devices are alive (inputs arrive through ``on_input``);
+- ``update(now)`` at ``rate`` Hz on the server's single scheduler (publish with ``publish``);
+- ``on_cmd(addr, msg)`` for a decoded ``cmd`` map; raise :class:`~rsal.msgs.MessageError` (or
+  :class:`OutOfRange`) to reject it: the server logs a rate-limited warning and nothing changes;
+- ``on_rpc(addr, op, args)`` returning a result map; raise ``MessageError``/``OutOfRange``/
+  :class:`~rsal.msgs.RpcError` for typed error replies;
+- ``geometry(addr)`` and ``ops(addr)`` for ``rpc/describe``; ``shutdown()`` to stop motors.
+
+Everything runs on the scheduler thread, so drivers need no locks.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from rsal.keys import DeviceAddr
+from rsal.msgs import ErrorCode, MessageError, RpcError
+
+from .config import DriverConfig
+
+if TYPE_CHECKING:
+    from .server import DeviceServer
+
+__all__ = ["Driver", "OutOfRange", "DRIVERS", "register"]
+
+log = logging.getLogger(__name__)
+
+DRIVERS: dict[str, type[Driver]] = {}
+
+
+def register(*names: str):
+    """Class decorator: make a driver available to configs under ``names``."""
+
+    def deco(cls):
+        for n in names:
+            DRIVERS[n] = cls
+        cls.driver_name = names[0]
+        return cls
+
+    return deco
+
+
+class OutOfRange(MessageError):
+    """A well-formed value outside what the device accepts."""
+
+
+class Driver:
+    driver_name: ClassVar[str] = "driver"
+    default_rate: ClassVar[float] = 10.0
+    #: interfaces this driver can provide ("*" any)
+    interfaces: ClassVar[tuple[str, ...]] = ("*",)
+    #: message type names for describe
+    data_types: ClassVar[dict[str, str]] = {}
+    cmd_types: ClassVar[dict[str, str]] = {}
+
+    def __init__(self, cfg: DriverConfig, server: DeviceServer):
+        self.cfg = cfg
+        self.server = server
+        self.rate = float(cfg.rate or self.default_rate)
+        self.log = logging.getLogger(f"mrs_bridge.{self.driver_name}")
+        for a in cfg.provides:
+            if "*" not in self.interfaces and a.interface not in self.interfaces:
+                raise MessageError(
+                    f"{cfg.where}: driver {self.driver_name!r} cannot provide {a.interface!r} "
+                    f"(it provides {', '.join(self.interfaces)})"
+                )
+
+    # ------------------------------------------------------------------ to override
+    def setup(self) -> None:
+        """Called once the required devices are alive."""
+
+    def update(self, now: float) -> None:
+        """Called at ``rate`` Hz (``rate`` 0: never; the driver publishes on its own events)."""
+
+    def on_input(self, addr: DeviceAddr, channel: str, msg: dict) -> None:
+        """Data (``channel == "data"``) or events from a required device."""
+
+    def on_cmd(self, addr: DeviceAddr, msg: dict) -> None:
+        raise MessageError(f"{addr} takes no commands")
+
+    def on_rpc(self, addr: DeviceAddr, op: str, args: dict) -> dict:
+        raise RpcError(ErrorCode.UNKNOWN_OP, f"{addr} has no operation {op!r}; it has: {', '.join(self.all_ops(addr))}")
+
+    def ops(self, addr: DeviceAddr) -> list[str]:
+        """Operations besides ``describe``."""
+        return []
+
+    def geometry(self, addr: DeviceAddr) -> dict[str, Any]:
+        return {}
+
+    def shutdown(self) -> None:
+        """Stop actuators; called on server stop and when the driver fails."""
+
+    # ------------------------------------------------------------------ helpers
+    def all_ops(self, addr: DeviceAddr) -> list[str]:
+        return ["describe", *self.ops(addr)]
+
+    def publish(self, addr: DeviceAddr, msg) -> None:
+        self.server.publish(addr, msg)
+
+    def event(self, addr: DeviceAddr, msg) -> None:
+        self.server.publish_event(addr, msg)
+
+    def provided(self, interface: str, index: int | None = None) -> list[DeviceAddr]:
+        return [a for a in self.cfg.provides if a.interface == interface and (index is None or a.index == index)]

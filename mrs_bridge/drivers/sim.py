@@ -1,0 +1,339 @@
+"""Simulation drivers: bind the in-process simulator to devices (Stage's Player plugin, A.4).
+
+- ``simulation`` provides ``simulation:0`` (default node ``sim``): it loads the world file
+  (``worldfile``), steps it at ``speedup`` times real time and answers the simulation interface
+  (``get_pose``, ``set_pose`` -- the thesis's ``setPositionOf`` for mixed-reality proxies --
+  ``models``, ``pause``, ``step``, ``reset``, ``remove_model``). After every step it hands over to
+  the ``sim`` drivers, which publish what changed.
+- ``sim`` (alias ``stage``) binds one robot model (``model``) and provides its ``position2d``
+  (odometry pose, or ground truth with ``localization = "gps"``), ``ranger:i`` (the model's i-th
+  ranger), ``sonar`` and ``laser`` (its first sonar / laser ranger), ``blobfinder``, ``gripper``
+  and ``power`` (a simulated battery).
+- ``mapfile`` (:mod:`mrs_bridge.drivers.mapfile`) serves the floorplan as a map.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+from rsal.keys import DeviceAddr
+from rsal.msgs import (
+    BlobData,
+    BlobfinderData,
+    ErrorCode,
+    GripperCmd,
+    GripperData,
+    MessageError,
+    Position2dData,
+    PowerData,
+    RangerData,
+    RpcError,
+    SimulationData,
+    VelocityCmd,
+    get_bool,
+    get_int,
+    get_str,
+    get_vec,
+)
+
+from ..config import ConfigError
+from ..driver import Driver, OutOfRange, register
+
+__all__ = ["SimulationDriver", "SimDriver"]
+
+WORLD_KEY = "simulator.world"
+
+
+@register("simulation")
+class SimulationDriver(Driver):
+    interfaces = ("simulation",)
+    data_types = {"simulation": "SimulationData"}
+
+    def __init__(self, cfg, server):
+        super().__init__(cfg, server)
+        from simulator import SimulatorError
+        from simulator.loader import load_world
+        from simulator.world import World
+
+        world = server.shared.get(WORLD_KEY)
+        if world is None:
+            path = cfg.path_param("worldfile")
+            if path is None:
+                raise ConfigError(f"{cfg.where}: needs 'worldfile', the world to simulate")
+            try:
+                spec = load_world(path, seed=cfg.param("seed"))
+                world = World(spec)
+            except SimulatorError as e:
+                raise ConfigError(f"{cfg.where}: {e}") from None
+            server.shared[WORLD_KEY] = world
+        self.world = world
+        sp = cfg.param("speedup", world.spec.speedup)
+        try:
+            sp = float(sp)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{cfg.where}: speedup {sp!r} must be a number (0 or inf: as fast as possible)") from None
+        self.speedup = math.inf if sp <= 0 or math.isinf(sp) else sp
+        self.rate = self.speedup / world.spec.interval_sim
+        self._last_pub = -math.inf
+        self._wall0 = time.monotonic()
+        self._sim0 = world.time
+
+    def publish_rate(self, addr) -> float:
+        return 10.0
+
+    def update(self, now: float) -> None:
+        w = self.world
+        if w.advance():
+            for d in self.server.drivers_of(SimDriver):
+                self.server.call_driver(d, d.on_step, w)
+        if now - self._last_pub >= 0.1:
+            self._last_pub = now
+            wall = now - self._wall0
+            rtf = (w.time - self._sim0) / wall if wall > 0 else 0.0
+            for a in self.cfg.provides:
+                self.publish(a, SimulationData(w.time, w.steps, w.paused, rtf))
+
+    def ops(self, addr):
+        return ["get_pose", "set_pose", "models", "pause", "step", "reset", "remove_model"]
+
+    def geometry(self, addr):
+        return {"interval_sim": self.world.spec.interval_sim, "speedup": self.speedup if math.isfinite(self.speedup) else 0}
+
+    def on_rpc(self, addr, op, args):
+        from simulator import ModelError
+
+        w = self.world
+        try:
+            if op == "get_pose":
+                return {"name": get_str(args, "name"), "pose": list(w.get_pose(get_str(args, "name")))}
+            if op == "set_pose":
+                name = get_str(args, "name")
+                x, y, a = get_vec(args, "pose", 3)
+                w.set_pose(name, x, y, a)
+                return {"name": name, "pose": [x, y, a]}
+            if op == "models":
+                return {"robots": w.robot_names, "objects": [n for n in w.model_names if n not in w.robot_names]}
+            if op == "pause":
+                w.pause(get_bool(args, "paused", True))
+                return {"paused": w.paused}
+            if op == "step":
+                n = get_int(args, "n", 1, lo=1, hi=10000)
+                for _ in range(n):
+                    w.step()
+                    for d in self.server.drivers_of(SimDriver):
+                        self.server.call_driver(d, d.on_step, w)
+                return {"t": w.time, "steps": w.steps}
+            if op == "reset":
+                w.reset()
+                return {"t": w.time}
+            if op == "remove_model":
+                w.remove_model(get_str(args, "name"))
+                return {}
+        except ModelError as e:
+            raise RpcError(ErrorCode.NOT_FOUND, str(e)) from None
+        return super().on_rpc(addr, op, args)
+
+
+def _battery_volts(percent: float) -> float:
+    return 10.5 + 2.5 * percent / 100.0
+
+
+@register("sim", "stage")
+class SimDriver(Driver):
+    interfaces = ("position2d", "ranger", "sonar", "laser", "blobfinder", "gripper", "power")
+    default_rate = 0.0  # publishes after each simulation step
+    data_types = {
+        "position2d": "Position2dData",
+        "ranger": "RangerData",
+        "sonar": "RangerData",
+        "laser": "RangerData",
+        "blobfinder": "BlobfinderData",
+        "gripper": "GripperData",
+        "power": "PowerData",
+    }
+    cmd_types = {"position2d": "VelocityCmd", "gripper": "GripperCmd"}
+
+    def __init__(self, cfg, server):
+        super().__init__(cfg, server)
+        from simulator import ModelError
+
+        world = server.shared.get(WORLD_KEY)
+        if world is None:
+            raise ConfigError(f"{cfg.where}: a 'simulation' driver block must come before the sim drivers")
+        self.world = world
+        self.model = cfg.param("model") or cfg.provides[0].node
+        try:
+            self.spec = world.model_spec(self.model)
+        except ModelError as e:
+            raise ConfigError(f"{cfg.where}: {e}") from None
+        if not self.spec.position:
+            raise ConfigError(f"{cfg.where}: model {self.model!r} is not a robot")
+        self.gps = str(cfg.param("localization", "odom")).lower() == "gps"
+        rangers = world.rangers(self.model)
+        self.sonar_idx = next((i for i, r in enumerate(rangers) if r.kind == "sonar"), None)
+        self.laser_idx = next((i for i, r in enumerate(rangers) if r.kind != "sonar"), None)
+        self._src: dict[DeviceAddr, int] = {}
+        for a in cfg.provides:
+            i = a.index
+            if a.interface == "ranger":
+                if i >= len(rangers):
+                    raise ConfigError(f"{cfg.where}: model {self.model!r} has {len(rangers)} ranger(s); ranger:{i} does not exist")
+                self._src[a] = i
+            elif a.interface in ("sonar", "laser"):
+                idx = self.sonar_idx if a.interface == "sonar" else self.laser_idx
+                if idx is None or i != 0:
+                    raise ConfigError(f"{cfg.where}: model {self.model!r} has no {a.interface}:{i}")
+                self._src[a] = idx
+            elif a.interface == "blobfinder" and i >= len(self.spec.blobfinders):
+                raise ConfigError(f"{cfg.where}: model {self.model!r} has no blobfinder:{i}")
+            elif a.interface == "gripper" and i >= len(self.spec.grippers):
+                raise ConfigError(f"{cfg.where}: model {self.model!r} has no gripper:{i}")
+        self._last_scan: dict[DeviceAddr, float] = {}
+        self._last_grip: dict[DeviceAddr, tuple] = {}
+        self.battery = float(cfg.param("battery_percent", 100.0))
+        self._last_power = -math.inf
+        self.motors = True
+
+    def publish_rate(self, addr) -> float:
+        if addr.interface == "power":
+            return 1.0
+        if addr.interface in ("ranger", "sonar", "laser"):
+            return 1.0 / self.world.rangers(self.model)[self._src[addr]].interval
+        return 1.0 / self.world.spec.interval_sim
+
+    # ------------------------------------------------------------------ publishing
+    def on_step(self, w) -> None:
+        if self.model not in w.model_names:  # removed at run time
+            return
+        t = w.time
+        v, om = w.velocity(self.model)
+        for a in self.cfg.provides:
+            iface = a.interface
+            if iface == "position2d":
+                pose = w.get_pose(self.model) if self.gps else w.odometry(self.model)
+                self.publish(a, Position2dData(t, pose, (v, 0.0, om), w.stalled(self.model)))
+            elif iface in ("ranger", "sonar", "laser"):
+                r = w.ranger(self.model, self._src[a])
+                if r is None or self._last_scan.get(a) == r.time:
+                    continue
+                self._last_scan[a] = r.time
+                self.publish(a, self._ranger_msg(r))
+            elif iface == "blobfinder":
+                self.publish(a, self._blob_msg(w, a.index))
+            elif iface == "gripper":
+                st = w.gripper(self.model, a.index)
+                msg = GripperData(t, st.paddles, st.lift, int(st.inner_beam) | (int(st.outer_beam) << 1),
+                                  1 if st.carrying else 0, st.carrying)
+                self.publish(a, msg)
+                prev = self._last_grip.get(a)
+                now_state = (st.paddles, st.lift, st.carrying)
+                if prev is not None and prev != now_state:
+                    self.event(a, {"t": t, "event": "state", "paddles": st.paddles, "lift": st.lift,
+                                   "carrying": st.carrying})
+                self._last_grip[a] = now_state
+            elif iface == "power":
+                drain = 0.002 + 0.01 * abs(v)  # % per simulated second
+                self.battery = max(0.0, self.battery - drain * w.spec.interval_sim)
+                if t - self._last_power >= 1.0:
+                    self._last_power = t
+                    self.publish(a, PowerData(t, _battery_volts(self.battery), self.battery))
+
+    @staticmethod
+    def _ranger_msg(r) -> RangerData:
+        s = r.spec.sensors
+        if r.spec.kind == "sonar" or len(s) != 1:
+            return RangerData(r.time, r.ranges, 0.0, 0.0, min(x.range_min for x in s), max(x.range_max for x in s))
+        sen = s[0]
+        step = sen.fov / (sen.samples - 1) if sen.samples > 1 else 0.0
+        return RangerData(r.time, r.ranges, -sen.fov / 2 + sen.pose[2], step, sen.range_min, sen.range_max)
+
+    def _blob_msg(self, w, index: int) -> BlobfinderData:
+        spec = self.spec.blobfinders[index]
+        blobs = [
+            BlobData(i, (b.color[0] << 16) | (b.color[1] << 8) | b.color[2], b.x, b.y, b.left, b.right, b.top,
+                     b.bottom, b.area, b.range, b.bearing)
+            for i, b in enumerate(w.blobfinder(self.model, index))
+        ]
+        return BlobfinderData(w.time, spec.image[0], spec.image[1], blobs)
+
+    # ------------------------------------------------------------------ commands
+    def on_cmd(self, addr, msg):
+        if addr.interface == "position2d":
+            c = VelocityCmd.from_dict(msg)
+            vmax, wmax = self.spec.max_speed
+            if abs(c.v) > vmax + 1e-9 or abs(c.w) > wmax + 1e-9:
+                raise OutOfRange(f"v={c.v:g} m/s, w={c.w:g} rad/s exceeds the limits |v| <= {vmax:g}, |w| <= {wmax:.3g}")
+            if c.vy != 0.0:
+                raise OutOfRange(f"vy={c.vy:g}: a differential drive cannot move sideways")
+            if self.motors:
+                self.world.set_velocity(self.model, c.v, c.w)
+        elif addr.interface == "gripper":
+            self.world.gripper_command(self.model, GripperCmd.from_dict(msg).action, addr.index)
+        else:
+            raise MessageError(f"{addr} takes no commands")
+
+    def ops(self, addr):
+        if addr.interface == "position2d":
+            return ["set_odom", "motor_power", "stop"]
+        if addr.interface == "gripper":
+            return ["open", "close", "up", "down", "stop"]
+        if addr.interface in ("ranger", "sonar", "laser"):
+            return ["get"]
+        return []
+
+    def on_rpc(self, addr, op, args):
+        w = self.world
+        if addr.interface == "position2d":
+            if op == "set_odom":
+                x, y, a = get_vec(args, "pose", 3)
+                w.set_odometry(self.model, x, y, a)
+                return {"pose": [x, y, a]}
+            if op == "motor_power":
+                self.motors = get_bool(args, "on")
+                if not self.motors:
+                    w.set_velocity(self.model, 0.0, 0.0)
+                return {"on": self.motors}
+            if op == "stop":
+                w.set_velocity(self.model, 0.0, 0.0)
+                return {}
+        if addr.interface == "gripper":
+            w.gripper_command(self.model, op, addr.index)
+            st = w.gripper(self.model, addr.index)
+            return {"paddles": st.paddles, "lift": st.lift}
+        if op == "get" and addr.interface in ("ranger", "sonar", "laser"):
+            r = w.ranger(self.model, self._src[addr])
+            if r is None:
+                raise RpcError(ErrorCode.UNAVAILABLE, "no scan yet")
+            return self._ranger_msg(r).to_dict()
+        return super().on_rpc(addr, op, args)
+
+    def geometry(self, addr) -> dict[str, Any]:
+        s = self.spec
+        if addr.interface == "position2d":
+            return {"size": list(s.size[:2]), "max_speed": list(s.max_speed), "max_accel": list(s.max_accel),
+                    "frame": "gps" if self.gps else "odom", "model": self.model}
+        if addr.interface in ("ranger", "sonar", "laser"):
+            r = self.world.rangers(self.model)[self._src[addr]]
+            return {
+                "kind": r.kind,
+                "pose": list(r.pose),
+                "sensors": [
+                    {"pose": list(x.pose), "fov": x.fov, "samples": x.samples, "range_min": x.range_min,
+                     "range_max": x.range_max}
+                    for x in r.sensors
+                ],
+            }
+        if addr.interface == "blobfinder":
+            b = s.blobfinders[addr.index]
+            return {"pose": list(b.pose), "fov": b.fov, "range_max": b.range_max, "image": list(b.image),
+                    "colors": [(c[0] << 16) | (c[1] << 8) | c[2] for c in b.colors]}
+        if addr.interface == "gripper":
+            g = s.grippers[addr.index]
+            return {"pose": list(g.pose), "size": list(g.size), "capacity": 1}
+        return {}
+
+    def shutdown(self) -> None:
+        if self.model in self.world.model_names:
+            self.world.set_velocity(self.model, 0.0, 0.0)

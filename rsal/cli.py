@@ -1,0 +1,106 @@
+"""The ``rsal`` command line.
+
+``rsal`` itself knows the commands of the RSAL layer (``ls``); the other layers add theirs through
+the ``rsal.commands`` entry-point group (``serve`` and ``sim`` from ``mrs_bridge``, ``demo`` from
+``agents``), so this package never imports the layers above or beside it. Each entry point is a
+function ``register(subparsers)`` that adds a sub-command whose ``func(args) -> int`` runs it.
+
+User errors (bad files, bad flags, nothing to talk to) print one line on stderr and exit 1;
+Ctrl-C exits 130 after a clean stop.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from importlib.metadata import entry_points
+
+from .transport import TransportArgs, add_transport_args
+
+__all__ = ["main", "setup_logging"]
+
+
+def setup_logging(verbosity: int = 0) -> None:
+    """INFO by default, DEBUG with ``-v``; one line per record on stderr."""
+    logging.basicConfig(level=logging.DEBUG if verbosity > 0 else logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s", datefmt="%H:%M:%S")
+
+
+def _cmd_ls(args: argparse.Namespace) -> int:
+    from .client import Fabric
+    from .msgs import Describe
+
+    with Fabric.connect(TransportArgs.from_namespace(args)) as fab:
+        node = fab.node(args.template)
+        # Liveliness history arrives quickly; give the network the wait the user asked for.
+        deadline = time.monotonic() + args.wait
+        last = -1
+        while time.monotonic() < deadline:
+            n = len(node.devices())
+            if n == last and n > 0 and time.monotonic() > deadline - args.wait / 2:
+                break
+            last = n
+            time.sleep(0.1)
+        devs = node.devices()
+        if not devs:
+            print(f"rsal ls: no devices match {args.template or '**'!r} (is a device server running? try "
+                  f"'rsal sim maps/floor.world')", file=sys.stderr)
+            return 1
+        info: dict = {}
+        for a in devs:
+            try:
+                info[a] = Describe.from_dict(fab.rpc(a, "describe", timeout=args.timeout))
+            except Exception as e:  # one silent device must not hide the others
+                info[a] = str(e)
+        rows = [("NODE", "INTERFACE", "INDEX", "DRIVER", "RATE")]
+        for a in devs:
+            d = info[a]
+            if isinstance(d, Describe):
+                rows.append((a.node, a.interface, str(a.index), d.driver, f"{d.rate:g} Hz"))
+            else:
+                rows.append((a.node, a.interface, str(a.index), "?", "?"))
+        widths = [max(len(r[i]) for r in rows) for i in range(5)]
+        for r in rows:
+            print("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="rsal", description="RSAL fabric: peer-to-peer multi-robot platform over Zenoh.")
+    ap.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    sub = ap.add_subparsers(dest="command", metavar="COMMAND")
+    ls = sub.add_parser("ls", help="list the devices alive on the fabric")
+    ls.add_argument("template", nargs="?", default="**", help="device template, e.g. 'r0:*:*' or 'rsal/*/laser/*'")
+    ls.add_argument("--wait", type=float, default=1.0, help="seconds to collect devices (default 1)")
+    ls.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for each describe reply")
+    add_transport_args(ls)
+    ls.set_defaults(func=_cmd_ls)
+    for ep in sorted(entry_points(group="rsal.commands"), key=lambda e: e.name):
+        try:
+            ep.load()(sub)
+        except Exception as e:  # a broken plug-in must not break the other commands
+            print(f"rsal: command {ep.name!r} is unavailable: {e}", file=sys.stderr)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    if not getattr(args, "func", None):
+        ap.print_help()
+        return 2
+    setup_logging(args.verbose)
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("rsal: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, TimeoutError, OSError) as e:
+        print(f"rsal {args.command}: {e}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

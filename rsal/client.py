@@ -1,0 +1,166 @@
+"""The client side of the fabric: one Zenoh session, device proxies and listener dispatch.
+
+:class:`Fabric` is what agents and tools hold: it opens the session (loopback defaults from
+:mod:`rsal.transport`), makes :mod:`device proxies <rsal.devices>` for addresses, runs RPCs as
+futures, and runs every listener on one dispatcher thread, so Zenoh's own threads only decode
+samples and queue work (STYLE rule 2: callbacks never block and never call Zenoh).
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from collections.abc import Callable
+from concurrent.futures import Future
+from typing import Any
+
+import zenoh
+
+from . import keys
+from .keys import DeviceAddr
+from .msgs import ErrorCode, RpcError, encode, parse_reply
+from .transport import TransportArgs, open_session
+
+__all__ = ["Fabric", "Dispatcher"]
+
+log = logging.getLogger(__name__)
+
+
+class Dispatcher:
+    """Runs callbacks in order on one daemon thread; a callback that raises is logged, not fatal."""
+
+    def __init__(self, name: str = "rsal-dispatch"):
+        self._q: queue.SimpleQueue = queue.SimpleQueue()
+        self._t = threading.Thread(target=self._run, name=name, daemon=True)
+        self._closed = False
+        self._t.start()
+
+    def submit(self, fn: Callable, *args: Any) -> None:
+        if not self._closed:
+            self._q.put((fn, args))
+
+    def _run(self) -> None:
+        while True:
+            item = self._q.get()
+            if item is None:
+                return
+            fn, args = item
+            try:
+                fn(*args)
+            except Exception:
+                log.exception("listener %r failed", getattr(fn, "__qualname__", fn))
+
+    def close(self, timeout: float = 2.0) -> None:
+        if not self._closed:
+            self._closed = True
+            self._q.put(None)
+            if threading.current_thread() is not self._t:
+                self._t.join(timeout)
+
+
+class Fabric:
+    """A connection to the RSAL fabric. Use as a context manager or call :meth:`close`."""
+
+    def __init__(self, session: zenoh.Session, *, own_session: bool = True):
+        self.session = session
+        self._own = own_session
+        self.dispatcher = Dispatcher()
+        self._proxies: dict[DeviceAddr, Any] = {}
+        self._lock = threading.Lock()
+        self._closed = False
+
+    @classmethod
+    def connect(cls, args: TransportArgs | None = None) -> Fabric:
+        return cls(open_session(args))
+
+    def __enter__(self) -> Fabric:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for p in list(self._proxies.values()):
+            p.undeclare()
+        self._proxies.clear()
+        self.dispatcher.close()
+        if self._own:
+            try:
+                self.session.close()
+            except Exception:
+                pass
+
+    # ------------------------------------------------------------------ devices
+    def device(self, addr: DeviceAddr | str, cls: type | None = None):
+        """The proxy of a device (one per address per fabric); ``cls`` defaults by interface."""
+        from .devices import proxy_class
+
+        a = keys.parse_device(addr) if isinstance(addr, str) else addr.without_key()
+        with self._lock:
+            p = self._proxies.get(a)
+            if p is None:
+                p = (cls or proxy_class(a.interface))(self, a)
+                self._proxies[a] = p
+        return p
+
+    def _forget(self, addr: DeviceAddr) -> None:
+        with self._lock:
+            self._proxies.pop(addr, None)
+
+    def node(self, *templates: str):
+        """A :class:`~rsal.node.DeviceNode` discovering devices that match the templates."""
+        from .node import DeviceNode
+
+        return DeviceNode(self, templates or ("**",))
+
+    # ------------------------------------------------------------------ rpc and cmd
+    def rpc_async(self, addr: DeviceAddr, op: str, args: dict | None = None, *, timeout: float = 2.0) -> Future:
+        """Call ``rsal/<addr>/rpc/<op>``; the future resolves to the reply map or raises RpcError."""
+        fut: Future = Future()
+        key = keys.rpc_key(addr, op)
+        got: list = []
+
+        def on_reply(reply) -> None:
+            if got:
+                return
+            try:
+                if reply.ok is not None:
+                    got.append(parse_reply(reply.ok.payload.to_bytes(), key=key))
+                else:
+                    parse_reply(reply.err.payload.to_bytes(), is_error=True, key=key)  # raises
+            except RpcError as e:
+                got.append(e)
+
+        def on_done() -> None:
+            if fut.done():
+                return
+            if not got:
+                fut.set_exception(RpcError(ErrorCode.TIMEOUT, f"no reply within {timeout:g} s (is the device alive?)", key))
+            elif isinstance(got[0], Exception):
+                fut.set_exception(got[0])
+            else:
+                fut.set_result(got[0])
+
+        try:
+            self.session.get(
+                key,
+                zenoh.handlers.Callback(on_reply, on_done),
+                payload=encode(args or {}),
+                timeout=timeout,
+                target=zenoh.QueryTarget.BEST_MATCHING,
+            )
+        except Exception as e:
+            fut.set_exception(RpcError(ErrorCode.UNAVAILABLE, f"cannot send the query: {e}", key))
+        return fut
+
+    def rpc(self, addr: DeviceAddr, op: str, args: dict | None = None, *, timeout: float = 2.0) -> dict:
+        """Blocking :meth:`rpc_async` (do not call it from a Zenoh callback)."""
+        return self.rpc_async(addr, op, args, timeout=timeout).result(timeout + 1.0)
+
+    def send(self, addr: DeviceAddr, msg) -> None:
+        """Fire-and-forget command to ``rsal/<addr>/cmd``."""
+        self.session.put(keys.cmd_key(addr), encode(msg), congestion_control=zenoh.CongestionControl.DROP)

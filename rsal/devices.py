@@ -1,0 +1,394 @@
+"""Client-side device proxies (thesis 3.6.2.3 "Device"), one class per Player interface.
+
+A proxy subscribes to its device's ``data`` (and ``event``) key and keeps the latest decoded
+message: agents read values without waiting, as the thesis's device threads did, but fed by push
+instead of polling. Listeners (``add_listener``) are called on the fabric's dispatcher thread with
+each new message. Commands are fire-and-forget puts; long operations (gripper open/close) return
+``concurrent.futures.Future`` objects that resolve when the device reports the new state.
+A proxy whose device's liveliness token goes away is marked lost (``alive`` false, ``on_lost``
+listeners called); it recovers by itself when the device comes back.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from . import keys, msgs
+from .data import BlobfinderBlob, Position
+from .keys import DeviceAddr
+from .msgs import MessageError
+
+if TYPE_CHECKING:
+    from .client import Fabric
+
+__all__ = [
+    "Device",
+    "Position2d",
+    "Ranger",
+    "Laser",
+    "Sonar",
+    "Blobfinder",
+    "Gripper",
+    "Power",
+    "Simulation",
+    "MapDevice",
+    "proxy_class",
+]
+
+log = logging.getLogger(__name__)
+
+
+class Device:
+    """Base proxy: latest data, listeners, liveness, rpc and cmd."""
+
+    data_type: Any = None  # msgs class used to decode data (None: plain dict)
+
+    def __init__(self, fabric: Fabric, addr: DeviceAddr):
+        self.fabric = fabric
+        self.addr = addr
+        self.alive = True
+        self.latest: Any = None
+        self.received_at = 0.0  # time.monotonic() of the latest data
+        self.count = 0
+        self._listeners: list[Callable[[Any], None]] = []
+        self._event_listeners: list[Callable[[dict], None]] = []
+        self._lost_listeners: list[Callable[[Device], None]] = []
+        self._cond = threading.Condition()
+        self._bad = 0
+        s = fabric.session
+        self._sub = s.declare_subscriber(keys.data_key(addr), self._on_data)
+        self._esub = s.declare_subscriber(keys.event_key(addr), self._on_event)
+        self._describe: msgs.Describe | None = None
+
+    # ------------------------------------------------------------------ identity
+    @property
+    def node(self) -> str:
+        return self.addr.node
+
+    @property
+    def interface(self) -> str:
+        return self.addr.interface
+
+    @property
+    def index(self) -> int:
+        return self.addr.index
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.addr} {'alive' if self.alive else 'lost'}>"
+
+    # ------------------------------------------------------------------ inbound (Zenoh threads)
+    def _decode(self, m: dict) -> Any:
+        return self.data_type.from_dict(m) if self.data_type is not None else m
+
+    def _on_data(self, sample) -> None:
+        try:
+            msg = self._decode(msgs.decode_map(sample.payload.to_bytes()))
+        except MessageError as e:
+            self._bad += 1
+            if self._bad in (1, 10, 100) or self._bad % 1000 == 0:
+                log.warning("%s: dropped malformed data (%d so far): %s", self.addr, self._bad, e)
+            return
+        with self._cond:
+            self.latest = msg
+            self.received_at = time.monotonic()
+            self.count += 1
+            self._cond.notify_all()
+        self._after_data(msg)
+        for fn in self._listeners:
+            self.fabric.dispatcher.submit(fn, msg)
+
+    def _after_data(self, msg: Any) -> None:
+        """Hook for subclasses (runs on a Zenoh thread: keep it short)."""
+
+    def _on_event(self, sample) -> None:
+        try:
+            ev = msgs.decode_map(sample.payload.to_bytes())
+        except MessageError:
+            return
+        self._handle_event(ev)
+        for fn in self._event_listeners:
+            self.fabric.dispatcher.submit(fn, ev)
+
+    def _handle_event(self, ev: dict) -> None:
+        pass
+
+    def _set_alive(self, alive: bool) -> None:
+        if alive == self.alive:
+            return
+        self.alive = alive
+        if not alive:
+            for fn in self._lost_listeners:
+                self.fabric.dispatcher.submit(fn, self)
+
+    # ------------------------------------------------------------------ public
+    def add_listener(self, fn: Callable[[Any], None]) -> None:
+        """``fn(msg)`` for every new data message (on the dispatcher thread)."""
+        self._listeners.append(fn)
+
+    def remove_listener(self, fn: Callable[[Any], None]) -> None:
+        if fn in self._listeners:
+            self._listeners.remove(fn)
+
+    def add_event_listener(self, fn: Callable[[dict], None]) -> None:
+        self._event_listeners.append(fn)
+
+    def on_lost(self, fn: Callable[[Device], None]) -> None:
+        """``fn(device)`` when the device's token disappears (needs a DeviceNode watching it)."""
+        self._lost_listeners.append(fn)
+
+    def wait_for_data(self, timeout: float = 5.0, *, newer_than: int | None = None) -> Any:
+        """Block until a data message (newer than message number ``newer_than``) arrived."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self.latest is None or (newer_than is not None and self.count <= newer_than):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(f"{self.addr}: no data within {timeout:g} s; is the device alive (rsal ls)?")
+                self._cond.wait(left)
+            return self.latest
+
+    def age(self) -> float:
+        """Seconds since the latest data (inf if none)."""
+        return time.monotonic() - self.received_at if self.latest is not None else math.inf
+
+    def rpc(self, op: str, timeout: float = 2.0, **args) -> dict:
+        return self.fabric.rpc(self.addr, op, args, timeout=timeout)
+
+    def rpc_async(self, op: str, timeout: float = 2.0, **args) -> Future:
+        return self.fabric.rpc_async(self.addr, op, args, timeout=timeout)
+
+    def describe(self, timeout: float = 2.0) -> msgs.Describe:
+        if self._describe is None:
+            self._describe = msgs.Describe.from_dict(self.rpc("describe", timeout=timeout))
+        return self._describe
+
+    def send(self, msg) -> None:
+        self.fabric.send(self.addr, msg)
+
+    def undeclare(self) -> None:
+        """Stop receiving (the fabric does this for every proxy when it closes)."""
+        for s in (self._sub, self._esub):
+            try:
+                s.undeclare()
+            except Exception:
+                pass
+        self.fabric._forget(self.addr)
+
+
+class Position2d(Device):
+    """A mobile base (Player position2d): pose in its frame, velocity, stall; velocity commands."""
+
+    data_type = msgs.Position2dData
+
+    @property
+    def position(self) -> Position | None:
+        m = self.latest
+        return Position(*m.pose) if m is not None else None
+
+    @property
+    def velocity(self) -> tuple[float, float]:
+        m = self.latest
+        return (m.vel[0], m.vel[2]) if m is not None else (0.0, 0.0)
+
+    @property
+    def stalled(self) -> bool:
+        return bool(self.latest.stall) if self.latest is not None else False
+
+    def set_velocity(self, v: float, w: float) -> None:
+        """Forward speed m/s and turn rate rad/s (the server rejects values over the robot's limits)."""
+        self.send(msgs.VelocityCmd(float(v), float(w)))
+
+    def stop(self) -> None:
+        self.send(msgs.VelocityCmd(0.0, 0.0))
+
+    def set_odometry(self, pose: Position) -> dict:
+        return self.rpc("set_odom", pose=list(pose.as_tuple()))
+
+    def limits(self) -> tuple[float, float]:
+        g = self.describe().geometry
+        v, w = g.get("max_speed", (0.5, 1.0))
+        return float(v), float(w)
+
+
+class Ranger(Device):
+    """A range sensor (Player ranger): ``ranges`` in metres, beam angles when known."""
+
+    data_type = msgs.RangerData
+
+    @property
+    def ranges(self) -> np.ndarray | None:
+        return self.latest.ranges if self.latest is not None else None
+
+    def angles(self) -> np.ndarray | None:
+        """Beam angles in the sensor frame: from the scan for a laser, from describe for a sonar."""
+        m = self.latest
+        if m is None:
+            return None
+        if m.angle_step != 0.0:
+            return m.angle_min + np.arange(m.ranges.shape[0]) * m.angle_step
+        g = self.describe().geometry
+        return np.array([s["pose"][2] for s in g.get("sensors", [])], dtype=float)
+
+    def sensor_poses(self) -> np.ndarray:
+        """(n, 3) poses of the beams' origins in the robot frame (x, y, yaw)."""
+        g = self.describe().geometry
+        mount = g.get("pose", [0.0, 0.0, 0.0])
+        sensors = g.get("sensors", [])
+        m = self.latest
+        out = []
+        cm, sm = math.cos(mount[2]), math.sin(mount[2])
+        for s in sensors:
+            x, y, a = s["pose"]
+            out.append((mount[0] + cm * x - sm * y, mount[1] + sm * x + cm * y, mount[2] + a))
+        if len(out) == 1 and m is not None and m.ranges.shape[0] > 1:
+            x, y, a = out[0]
+            angs = self.angles()
+            return np.column_stack([np.full(angs.shape, x), np.full(angs.shape, y), angs + mount[2]])
+        return np.array(out, dtype=float).reshape(-1, 3)
+
+
+class Laser(Ranger):
+    pass
+
+
+class Sonar(Ranger):
+    pass
+
+
+class Blobfinder(Device):
+    data_type = msgs.BlobfinderData
+
+    @property
+    def blobs(self) -> list[BlobfinderBlob]:
+        m = self.latest
+        if m is None:
+            return []
+        return [
+            BlobfinderBlob(b.id, b.color, b.area, b.x, b.y, b.left, b.right, b.top, b.bottom, b.range, b.bearing)
+            for b in m.blobs
+        ]
+
+
+class Gripper(Device):
+    """A gripper: ``open()``/``close()``/``lift_up()``/``lift_down()`` return futures that resolve
+    with the gripper state when the paddles or lift reach the requested position."""
+
+    data_type = msgs.GripperData
+
+    def __init__(self, fabric, addr):
+        self._waiters: list[tuple[Callable[[msgs.GripperData], bool], Future, float]] = []
+        self._wlock = threading.Lock()
+        super().__init__(fabric, addr)
+
+    @property
+    def state(self) -> msgs.GripperData | None:
+        return self.latest
+
+    @property
+    def carrying(self) -> bool:
+        return bool(self.latest and self.latest.stored)
+
+    @property
+    def beams(self) -> int:
+        return self.latest.beams if self.latest else 0
+
+    def _after_data(self, msg) -> None:
+        now = time.monotonic()
+        with self._wlock:
+            keep = []
+            for cond, fut, deadline in self._waiters:
+                if fut.done():
+                    continue
+                if cond(msg):
+                    fut.set_result(msg)
+                elif now > deadline:
+                    fut.set_exception(TimeoutError(f"{self.addr}: gripper did not get there in time"))
+                else:
+                    keep.append((cond, fut, deadline))
+            self._waiters = keep
+
+    def _command(self, action: str, cond, timeout: float) -> Future:
+        fut: Future = Future()
+        with self._wlock:
+            self._waiters.append((cond, fut, time.monotonic() + timeout))
+        self.send(msgs.GripperCmd(action))
+        return fut
+
+    def open(self, timeout: float = 10.0) -> Future:
+        return self._command("open", lambda m: m.paddles == "open", timeout)
+
+    def close(self, timeout: float = 10.0) -> Future:
+        return self._command("close", lambda m: m.paddles == "closed", timeout)
+
+    def lift_up(self, timeout: float = 10.0) -> Future:
+        return self._command("up", lambda m: m.lift == "up", timeout)
+
+    def lift_down(self, timeout: float = 10.0) -> Future:
+        return self._command("down", lambda m: m.lift == "down", timeout)
+
+    def stop(self) -> None:
+        self.send(msgs.GripperCmd("stop"))
+
+
+class Power(Device):
+    data_type = msgs.PowerData
+
+    @property
+    def percent(self) -> float | None:
+        return self.latest.percent if self.latest else None
+
+
+class Simulation(Device):
+    """The simulation interface (thesis ``setPositionOf``): poses of models by name."""
+
+    data_type = msgs.SimulationData
+
+    def get_pose(self, name: str) -> Position:
+        return Position(*self.rpc("get_pose", name=name)["pose"])
+
+    def set_pose(self, name: str, pose: Position) -> None:
+        self.rpc("set_pose", name=name, pose=list(pose.as_tuple()))
+
+    def models(self) -> dict:
+        return self.rpc("models")
+
+    def pause(self, paused: bool = True) -> bool:
+        return bool(self.rpc("pause", paused=paused)["paused"])
+
+    def step(self, n: int = 1) -> dict:
+        return self.rpc("step", n=n)
+
+    def reset(self) -> dict:
+        return self.rpc("reset")
+
+
+class MapDevice(Device):
+    """A grid map (Player map): :meth:`get_map` fetches the whole grid once."""
+
+    def get_map(self, timeout: float = 5.0) -> msgs.MapData:
+        return msgs.MapData.from_dict(self.rpc("get", timeout=timeout))
+
+
+_PROXIES: dict[str, type[Device]] = {
+    "position2d": Position2d,
+    "ranger": Ranger,
+    "laser": Laser,
+    "sonar": Sonar,
+    "blobfinder": Blobfinder,
+    "gripper": Gripper,
+    "power": Power,
+    "simulation": Simulation,
+    "map": MapDevice,
+}
+
+
+def proxy_class(interface: str) -> type[Device]:
+    return _PROXIES.get(interface, Device)

@@ -1,0 +1,470 @@
+"""The message schema: every payload on the key space, defined once, validated on decode.
+
+Payloads are msgpack maps with short string keys; numbers are SI (m, rad, s); arrays of ranges
+travel as packed little-endian float32 ``bytes``. Every type here is a frozen dataclass with
+``to_dict()`` / ``from_dict()`` and :func:`encode` / :func:`decode` for bytes. Decoding checks
+types, finiteness and required fields and raises :class:`MessageError`, whose text names the
+field and what was expected, so a device server can answer or log one line and carry on.
+
+RPC replies: success is ``{"ok": true, ...result}``; failure is sent with Zenoh's ``reply_err``
+as ``{"ok": false, "code": <ErrorCode>, "message": str}``. ``docs/protocol.md`` documents every
+message; this module is the implementation of that document.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+from enum import StrEnum
+from typing import Any, ClassVar
+
+import msgpack
+import numpy as np
+
+__all__ = [
+    "MessageError",
+    "ErrorCode",
+    "RpcError",
+    "encode",
+    "decode",
+    "decode_map",
+    "ok_reply",
+    "error_reply",
+    "parse_reply",
+    "VelocityCmd",
+    "Position2dData",
+    "RangerData",
+    "BlobData",
+    "BlobfinderData",
+    "GripperData",
+    "GripperCmd",
+    "PowerData",
+    "SimulationData",
+    "MapData",
+    "Describe",
+    "f32_bytes",
+    "f32_array",
+    "get_float",
+    "get_vec",
+    "get_str",
+    "get_bool",
+    "get_int",
+]
+
+PROTOCOL_VERSION = 1
+
+
+class MessageError(ValueError):
+    """A payload that does not match its schema; the text names the field."""
+
+
+class ErrorCode(StrEnum):
+    """Error codes of RPC replies."""
+
+    BAD_REQUEST = "bad_request"  # not msgpack, wrong fields or types, NaN/inf
+    OUT_OF_RANGE = "out_of_range"  # well-formed but outside what the device accepts
+    UNKNOWN_OP = "unknown_op"  # the device has no such operation
+    NOT_FOUND = "not_found"  # a named thing (model, goal) does not exist
+    UNAVAILABLE = "unavailable"  # the device cannot do it now (required device lost, busy)
+    INTERNAL = "internal"  # the driver failed; see the server log
+    TIMEOUT = "timeout"  # (client side) no reply within the deadline
+
+
+class RpcError(Exception):
+    """An RPC answered with an error (or not at all)."""
+
+    def __init__(self, code: str, message: str, key: str = ""):
+        self.code = str(code)
+        self.message = str(message)
+        self.key = key
+        super().__init__(f"{key + ': ' if key else ''}{self.code}: {self.message}")
+
+
+# ---------------------------------------------------------------------------- codec
+def encode(obj: Any) -> bytes:
+    """msgpack bytes of a message (dataclass with ``to_dict``) or a plain map."""
+    if hasattr(obj, "to_dict"):
+        obj = obj.to_dict()
+    return msgpack.packb(obj, use_bin_type=True)
+
+
+def decode_map(data: bytes | bytearray | memoryview | None) -> dict:
+    """Bytes to a msgpack map; raises MessageError for anything else. Empty payload = ``{}``."""
+    if data is None or len(data) == 0:
+        return {}
+    try:
+        obj = msgpack.unpackb(bytes(data), raw=False, strict_map_key=False)
+    except Exception as e:  # msgpack raises several unrelated exception types
+        raise MessageError(f"payload is not msgpack ({type(e).__name__})") from None
+    if not isinstance(obj, dict):
+        raise MessageError(f"payload must be a msgpack map, not {type(obj).__name__}")
+    return obj
+
+
+def decode(cls, data: bytes | bytearray | memoryview | None):
+    """Bytes to an instance of the message class ``cls`` (validated)."""
+    return cls.from_dict(decode_map(data))
+
+
+def ok_reply(**result: Any) -> bytes:
+    return encode({"ok": True, **result})
+
+
+def error_reply(code: ErrorCode | str, message: str) -> bytes:
+    return encode({"ok": False, "code": str(code), "message": str(message)})
+
+
+def parse_reply(data: bytes, *, is_error: bool = False, key: str = "") -> dict:
+    """Decode an RPC reply; raise :class:`RpcError` for an error reply or a malformed one."""
+    try:
+        m = decode_map(data)
+    except MessageError as e:
+        raise RpcError(ErrorCode.BAD_REQUEST, f"malformed reply: {e}", key) from None
+    if is_error or not m.get("ok", False):
+        raise RpcError(m.get("code", ErrorCode.INTERNAL), m.get("message", "error without a message"), key)
+    return m
+
+
+# ---------------------------------------------------------------------------- field readers
+def _need(m: dict, name: str, required: bool):
+    if name not in m or m[name] is None:
+        if required:
+            raise MessageError(f"field {name!r} is missing")
+        return None
+    return m[name]
+
+
+def get_float(m: dict, name: str, default: float | None = None, *, lo: float = -math.inf, hi: float = math.inf):
+    v = _need(m, name, default is None)
+    if v is None:
+        return default
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise MessageError(f"field {name!r} must be a number, not {type(v).__name__}")
+    v = float(v)
+    if not math.isfinite(v):
+        raise MessageError(f"field {name!r} must be finite, not {v}")
+    if not lo <= v <= hi:
+        raise MessageError(f"field {name!r} = {v} is outside [{lo}, {hi}]")
+    return v
+
+
+def get_int(m: dict, name: str, default: int | None = None, *, lo: int | None = None, hi: int | None = None):
+    v = _need(m, name, default is None)
+    if v is None:
+        return default
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise MessageError(f"field {name!r} must be an integer, not {type(v).__name__}")
+    if (lo is not None and v < lo) or (hi is not None and v > hi):
+        raise MessageError(f"field {name!r} = {v} is outside [{lo}, {hi}]")
+    return v
+
+
+def get_bool(m: dict, name: str, default: bool | None = None) -> bool:
+    v = _need(m, name, default is None)
+    if v is None:
+        return bool(default)
+    if not isinstance(v, bool):
+        raise MessageError(f"field {name!r} must be true or false, not {type(v).__name__}")
+    return v
+
+
+def get_str(m: dict, name: str, default: str | None = None, *, choices=None, optional: bool = False):
+    v = _need(m, name, default is None and not optional)
+    if v is None:
+        return default
+    if not isinstance(v, str):
+        raise MessageError(f"field {name!r} must be a string, not {type(v).__name__}")
+    if choices is not None and v not in choices:
+        raise MessageError(f"field {name!r} = {v!r} must be one of {', '.join(map(str, choices))}")
+    return v
+
+
+def get_vec(m: dict, name: str, n: int, default: tuple | None = None) -> tuple[float, ...]:
+    v = _need(m, name, default is None)
+    if v is None:
+        return default  # type: ignore[return-value]
+    if not isinstance(v, (list, tuple)) or len(v) != n:
+        raise MessageError(f"field {name!r} must be a list of {n} numbers")
+    out = []
+    for i, x in enumerate(v):
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(float(x)):
+            raise MessageError(f"field {name!r}[{i}] must be a finite number, not {x!r}")
+        out.append(float(x))
+    return tuple(out)
+
+
+def f32_bytes(a) -> bytes:
+    return np.ascontiguousarray(a, dtype="<f4").tobytes()
+
+
+def f32_array(m: dict, name: str) -> np.ndarray:
+    v = _need(m, name, True)
+    if not isinstance(v, (bytes, bytearray)):
+        raise MessageError(f"field {name!r} must be packed float32 bytes, not {type(v).__name__}")
+    if len(v) % 4:
+        raise MessageError(f"field {name!r} has {len(v)} bytes, not a whole number of float32")
+    return np.frombuffer(v, dtype="<f4")
+
+
+class _Msg:
+    """Common ``to_dict`` for message dataclasses (tuples become lists, arrays float32 bytes)."""
+
+    def to_dict(self) -> dict:
+        d = {}
+        for f in fields(self):  # type: ignore[arg-type]
+            v = getattr(self, f.name)
+            if isinstance(v, np.ndarray):
+                v = f32_bytes(v)
+            elif isinstance(v, tuple):
+                v = list(v)
+            elif isinstance(v, list) and v and hasattr(v[0], "to_dict"):
+                v = [x.to_dict() for x in v]
+            d[f.name] = v
+        return d
+
+
+# ---------------------------------------------------------------------------- position2d
+@dataclass(frozen=True)
+class VelocityCmd(_Msg):
+    """position2d ``cmd``: forward speed ``v`` (m/s), sideways ``vy`` (m/s, 0 for a diff drive),
+    turn rate ``w`` (rad/s). Player's ``SetSpeed``."""
+
+    v: float
+    w: float
+    vy: float = 0.0
+
+    @classmethod
+    def from_dict(cls, m: dict) -> VelocityCmd:
+        return cls(get_float(m, "v"), get_float(m, "w"), get_float(m, "vy", 0.0))
+
+
+@dataclass(frozen=True)
+class Position2dData(_Msg):
+    """position2d ``data``: pose (x, y, yaw) in the device's frame (odometry or map), velocity
+    (vx, vy, w) in the robot frame, stall flag."""
+
+    t: float
+    pose: tuple[float, float, float]
+    vel: tuple[float, float, float]
+    stall: bool = False
+
+    @classmethod
+    def from_dict(cls, m: dict) -> Position2dData:
+        return cls(get_float(m, "t"), get_vec(m, "pose", 3), get_vec(m, "vel", 3), get_bool(m, "stall", False))
+
+
+# ---------------------------------------------------------------------------- ranger / laser / sonar
+@dataclass(frozen=True, eq=False)
+class RangerData(_Msg):
+    """ranger, laser and sonar ``data``: ``ranges`` (float32 bytes on the wire, metres). For a
+    laser, beam ``i`` points at ``angle_min + i * angle_step`` (rad, robot... sensor frame); a
+    sonar's transducer poses are in ``rpc/describe`` geometry."""
+
+    t: float
+    ranges: np.ndarray
+    angle_min: float = 0.0
+    angle_step: float = 0.0
+    range_min: float = 0.0
+    range_max: float = 0.0
+
+    @classmethod
+    def from_dict(cls, m: dict) -> RangerData:
+        return cls(
+            get_float(m, "t"),
+            f32_array(m, "ranges"),
+            get_float(m, "angle_min", 0.0),
+            get_float(m, "angle_step", 0.0),
+            get_float(m, "range_min", 0.0),
+            get_float(m, "range_max", 0.0),
+        )
+
+
+# ---------------------------------------------------------------------------- blobfinder
+@dataclass(frozen=True)
+class BlobData(_Msg):
+    """One blob: colour 0xRRGGBB, image box and centre (pixels), area, range (m), bearing (rad)."""
+
+    id: int
+    color: int
+    x: int
+    y: int
+    left: int
+    right: int
+    top: int
+    bottom: int
+    area: int
+    range: float
+    bearing: float
+
+    @classmethod
+    def from_dict(cls, m: dict) -> BlobData:
+        if not isinstance(m, dict):
+            raise MessageError("each blob must be a map")
+        ints = {k: get_int(m, k, 0) for k in ("id", "x", "y", "left", "right", "top", "bottom", "area")}
+        return cls(
+            color=get_int(m, "color", lo=0, hi=0xFFFFFF),
+            range=get_float(m, "range"),
+            bearing=get_float(m, "bearing", 0.0),
+            **ints,
+        )
+
+
+@dataclass(frozen=True)
+class BlobfinderData(_Msg):
+    t: float
+    width: int
+    height: int
+    blobs: list[BlobData] = field(default_factory=list)
+
+    @classmethod
+    def from_dict(cls, m: dict) -> BlobfinderData:
+        raw = _need(m, "blobs", True)
+        if not isinstance(raw, list):
+            raise MessageError("field 'blobs' must be a list")
+        return cls(
+            get_float(m, "t"),
+            get_int(m, "width", lo=0),
+            get_int(m, "height", lo=0),
+            [BlobData.from_dict(b) for b in raw],
+        )
+
+    def to_dict(self) -> dict:
+        return {"t": self.t, "width": self.width, "height": self.height, "blobs": [asdict(b) for b in self.blobs]}
+
+
+# ---------------------------------------------------------------------------- gripper
+GRIPPER_ACTIONS = ("open", "close", "stop", "up", "down")
+
+
+@dataclass(frozen=True)
+class GripperCmd(_Msg):
+    """gripper ``cmd``: one of open, close, stop (paddles), up, down (lift)."""
+
+    action: str
+
+    @classmethod
+    def from_dict(cls, m: dict) -> GripperCmd:
+        return cls(get_str(m, "action", choices=GRIPPER_ACTIONS))
+
+
+@dataclass(frozen=True)
+class GripperData(_Msg):
+    """gripper ``data``: paddles open/closed/opening/closing, lift down/up/raising/lowering,
+    beams bit 0 inner and bit 1 outer, ``stored`` objects held (0 or 1) and what is carried."""
+
+    t: float
+    paddles: str
+    lift: str
+    beams: int
+    stored: int
+    carrying: str | None = None
+
+    @classmethod
+    def from_dict(cls, m: dict) -> GripperData:
+        return cls(
+            get_float(m, "t"),
+            get_str(m, "paddles", choices=("open", "closed", "opening", "closing", "error")),
+            get_str(m, "lift", "down"),
+            get_int(m, "beams", 0, lo=0, hi=3),
+            get_int(m, "stored", 0, lo=0),
+            get_str(m, "carrying", optional=True),
+        )
+
+
+# ---------------------------------------------------------------------------- power
+@dataclass(frozen=True)
+class PowerData(_Msg):
+    t: float
+    volts: float
+    percent: float
+    charging: bool = False
+
+    @classmethod
+    def from_dict(cls, m: dict) -> PowerData:
+        return cls(get_float(m, "t"), get_float(m, "volts"), get_float(m, "percent", lo=0, hi=100),
+                   get_bool(m, "charging", False))
+
+
+# ---------------------------------------------------------------------------- simulation
+@dataclass(frozen=True)
+class SimulationData(_Msg):
+    """simulation ``data``: simulated time, steps, paused flag, achieved real-time factor."""
+
+    t: float
+    steps: int
+    paused: bool
+    rtf: float = 0.0
+
+    @classmethod
+    def from_dict(cls, m: dict) -> SimulationData:
+        return cls(get_float(m, "t"), get_int(m, "steps", lo=0), get_bool(m, "paused"), get_float(m, "rtf", 0.0))
+
+
+# ---------------------------------------------------------------------------- map
+@dataclass(frozen=True, eq=False)
+class MapData(_Msg):
+    """map ``rpc/get`` reply: ``cells`` int8 row-major from the *bottom* row, Player's values
+    (-1 free, 0 unknown, +1 occupied), ``origin`` the world position of the bottom-left corner."""
+
+    width: int
+    height: int
+    resolution: float
+    origin: tuple[float, float]
+    cells: np.ndarray  # int8, shape (height, width)
+
+    def to_dict(self) -> dict:
+        return {
+            "width": self.width,
+            "height": self.height,
+            "resolution": self.resolution,
+            "origin": list(self.origin),
+            "cells": np.ascontiguousarray(self.cells, dtype=np.int8).tobytes(),
+        }
+
+    @classmethod
+    def from_dict(cls, m: dict) -> MapData:
+        w = get_int(m, "width", lo=1)
+        h = get_int(m, "height", lo=1)
+        raw = _need(m, "cells", True)
+        if not isinstance(raw, (bytes, bytearray)) or len(raw) != w * h:
+            raise MessageError(f"field 'cells' must be {w * h} bytes (width x height int8)")
+        return cls(w, h, get_float(m, "resolution", lo=1e-6), get_vec(m, "origin", 2),
+                   np.frombuffer(raw, dtype=np.int8).reshape(h, w))
+
+
+# ---------------------------------------------------------------------------- describe
+@dataclass(frozen=True)
+class Describe(_Msg):
+    """``rpc/describe`` reply body: what a device is and how to talk to it."""
+
+    node: str
+    interface: str
+    index: int
+    driver: str
+    rate: float  # Hz of data publication (0: on change only)
+    geometry: dict = field(default_factory=dict)
+    ops: list[str] = field(default_factory=list)
+    cmd: str = ""  # name of the cmd message type, "" if the device takes no commands
+    data: str = ""  # name of the data message type
+    protocol: int = PROTOCOL_VERSION
+
+    KIND: ClassVar[str] = "describe"
+
+    @classmethod
+    def from_dict(cls, m: dict) -> Describe:
+        geo = m.get("geometry", {})
+        ops = m.get("ops", [])
+        if not isinstance(geo, dict) or not isinstance(ops, list):
+            raise MessageError("describe: 'geometry' must be a map and 'ops' a list")
+        return cls(
+            get_str(m, "node"),
+            get_str(m, "interface"),
+            get_int(m, "index", lo=0),
+            get_str(m, "driver"),
+            get_float(m, "rate", 0.0),
+            geo,
+            [str(o) for o in ops],
+            get_str(m, "cmd", ""),
+            get_str(m, "data", ""),
+            get_int(m, "protocol", PROTOCOL_VERSION),
+        )

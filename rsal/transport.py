@@ -1,0 +1,118 @@
+"""Opening Zenoh sessions the RSAL way: loopback by default, multicast scouting off.
+
+Every ``rsal`` command takes the transport flags of the zenoh examples, defined once here:
+``--mode``, ``--connect``, ``--listen``, ``--config`` and ``--cfg KEY:VALUE``. With none of them a
+device server listens on ``tcp/127.0.0.1:7447`` (or, if another server already does, on a free
+loopback port and connects to 7447) and every other process connects to ``tcp/127.0.0.1:7447``;
+peers then find each other by gossip. Multicast scouting stays off unless a config file turns it
+on (only inside network namespaces the tests create).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+from dataclasses import dataclass, field
+
+import zenoh
+
+__all__ = ["DEFAULT_ENDPOINT", "TransportArgs", "add_transport_args", "make_config", "open_session", "port_free"]
+
+DEFAULT_ENDPOINT = os.environ.get("RSAL_ENDPOINT", "tcp/127.0.0.1:7447")
+
+
+@dataclass
+class TransportArgs:
+    mode: str = "peer"
+    connect: list[str] = field(default_factory=list)
+    listen: list[str] = field(default_factory=list)
+    config: str | None = None
+    cfg: list[str] = field(default_factory=list)
+
+    @classmethod
+    def from_namespace(cls, ns: argparse.Namespace) -> TransportArgs:
+        return cls(
+            mode=getattr(ns, "mode", None) or "peer",
+            connect=list(getattr(ns, "connect", None) or []),
+            listen=list(getattr(ns, "listen", None) or []),
+            config=getattr(ns, "config", None),
+            cfg=list(getattr(ns, "cfg", None) or []),
+        )
+
+
+def add_transport_args(p: argparse.ArgumentParser) -> None:
+    """The zenoh examples' transport flags."""
+    g = p.add_argument_group("transport (Zenoh)")
+    g.add_argument("--mode", "-m", choices=("peer", "client", "router"), help="Zenoh mode (default peer)")
+    g.add_argument("--connect", "-e", action="append", metavar="ENDPOINT",
+                   help=f"endpoint to connect to (repeatable; default {DEFAULT_ENDPOINT})")
+    g.add_argument("--listen", "-l", action="append", metavar="ENDPOINT", help="endpoint to listen on (repeatable)")
+    g.add_argument("--config", "-c", metavar="FILE", help="a Zenoh JSON5 configuration file")
+    g.add_argument("--cfg", action="append", metavar="KEY:VALUE",
+                   help="a Zenoh configuration entry, VALUE in JSON5, e.g. --cfg 'transport/shared_memory/enabled:false'")
+
+
+def port_free(endpoint: str) -> bool:
+    """True if a ``tcp/HOST:PORT`` endpoint can be bound now."""
+    try:
+        proto, addr = endpoint.split("/", 1)
+        host, port = addr.rsplit(":", 1)
+        if proto != "tcp":
+            return True
+        with socket.socket(socket.AF_INET6 if ":" in host.strip("[]") else socket.AF_INET) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind((host.strip("[]"), int(port)))
+        return True
+    except (OSError, ValueError):
+        return False
+
+
+def make_config(args: TransportArgs | None = None, *, server: bool = False) -> zenoh.Config:
+    """A Zenoh config from the flags; ``server`` applies the device server's listen default."""
+    a = args or TransportArgs()
+    if a.config:
+        try:
+            conf = zenoh.Config.from_file(a.config)
+        except Exception as e:  # zenoh raises ZError with the parser's message
+            raise ValueError(f"Zenoh config {a.config!r} cannot be read: {e}") from None
+    else:
+        conf = zenoh.Config()
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("mode", json.dumps(a.mode))
+    listen = list(a.listen)
+    connect = list(a.connect)
+    if not a.config and not listen and not connect:
+        if server and port_free(DEFAULT_ENDPOINT):
+            listen = [DEFAULT_ENDPOINT]
+        elif server:
+            listen = ["tcp/127.0.0.1:0"]
+            connect = [DEFAULT_ENDPOINT]
+        else:
+            connect = [DEFAULT_ENDPOINT]
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(connect))
+        # Keep retrying the connection so a client may start before its server.
+        conf.insert_json5("connect/timeout_ms", "-1")
+        conf.insert_json5("connect/exit_on_failure", "false")
+    for item in a.cfg:
+        if ":" not in item:
+            raise ValueError(f"--cfg {item!r} must be KEY:VALUE")
+        k, v = item.split(":", 1)
+        try:
+            conf.insert_json5(k, v)
+        except Exception as e:
+            raise ValueError(f"--cfg {item!r}: {e}") from None
+    return conf
+
+
+def open_session(args: TransportArgs | None = None, *, server: bool = False) -> zenoh.Session:
+    """Open a Zenoh session; errors become ``ValueError`` with one line."""
+    conf = make_config(args, server=server)
+    try:
+        return zenoh.open(conf)
+    except Exception as e:
+        raise ValueError(f"cannot open a Zenoh session: {e}") from None
