@@ -1,0 +1,132 @@
+"""Shared test helpers: free loopback ports, real server processes, clients on loopback.
+
+Integration tests start real processes (``start_new_session=True``) and always stop them by the
+PID they started; they wait on conditions with deadlines, never on fixed sleeps.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+MAPS = ROOT / "maps"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_until(cond, timeout: float, what: str, interval: float = 0.02):
+    """Poll ``cond()`` until truthy; fail the test with ``what`` after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while True:
+        v = cond()
+        if v:
+            return v
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(interval)
+
+
+class Proc:
+    """A child process in its own session, killed by PID on exit."""
+
+    def __init__(self, args: list[str], *, env: dict | None = None, cwd: Path = ROOT):
+        e = dict(os.environ)
+        e.update(env or {})
+        e.setdefault("PYTHONUNBUFFERED", "1")
+        self.args = args
+        self.log_path = Path(os.environ.get("PYTEST_TMP", "/tmp")) / f"proc-{os.getpid()}-{time.monotonic_ns()}.log"
+        self._log = open(self.log_path, "w+b")
+        self.p = subprocess.Popen(args, stdout=self._log, stderr=subprocess.STDOUT, cwd=cwd, env=e,
+                                  start_new_session=True)
+
+    @property
+    def pid(self) -> int:
+        return self.p.pid
+
+    def output(self) -> str:
+        self._log.flush()
+        return self.log_path.read_text(errors="replace")
+
+    def alive(self) -> bool:
+        return self.p.poll() is None
+
+    def signal(self, sig: int) -> None:
+        if self.alive():
+            os.kill(self.p.pid, sig)
+
+    def stop(self, timeout: float = 10.0) -> int:
+        if self.alive():
+            self.signal(signal.SIGTERM)
+            try:
+                self.p.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.signal(signal.SIGKILL)
+                self.p.wait(5)
+        return self.p.returncode
+
+    def kill(self) -> None:
+        if self.alive():
+            self.signal(signal.SIGKILL)
+            self.p.wait(5)
+
+    def close(self) -> None:
+        try:
+            self.stop()
+        finally:
+            self._log.close()
+            try:
+                self.log_path.unlink()
+            except OSError:
+                pass
+
+
+def rsal_cmd(*args: str) -> list[str]:
+    return [sys.executable, "-m", "rsal.cli", *args]
+
+
+@pytest.fixture
+def procs():
+    started: list[Proc] = []
+
+    def start(args, **kw) -> Proc:
+        p = Proc(args, **kw)
+        started.append(p)
+        return p
+
+    yield start
+    for p in started:
+        p.close()
+
+
+@pytest.fixture
+def port() -> int:
+    return free_port()
+
+
+@pytest.fixture
+def fabric_factory():
+    from rsal.client import Fabric
+    from rsal.transport import TransportArgs
+
+    made = []
+
+    def make(port: int) -> Fabric:
+        f = Fabric.connect(TransportArgs(connect=[f"tcp/127.0.0.1:{port}"]))
+        made.append(f)
+        return f
+
+    yield make
+    for f in made:
+        f.close()
