@@ -35,8 +35,8 @@ STAGE_RTF = {100: 2.7, 300: 0.9, 1000: 0.21}  # C++ Stage, same robots/lasers/ar
 
 def build_world(n: int, seed: int):
     import numpy as np
-    from simulator.presets import urg04lx
 
+    from simulator.presets import urg04lx
     from simulator.spec import FloorplanSpec, ModelSpec, WorldSpec
     from simulator.world import World
 

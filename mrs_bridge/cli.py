@@ -85,8 +85,9 @@ def sim_config(world, *, map_device: bool = True, source: str = "") -> ServerCon
     from rsal.keys import DeviceAddr
 
     def block(name, node, provides, **params):
-        return DriverConfig(name, [DeviceAddr(node, i, n) for i, n in provides], [], params, None,
-                            f"{source or 'sim'}: {name} {node}")
+        return DriverConfig(
+            name, [DeviceAddr(node, i, n) for i, n in provides], [], params, None, f"{source or 'sim'}: {name} {node}"
+        )
 
     drivers = [block("simulation", "sim", [("simulation", 0)])]
     if map_device and world.grid is not None:
@@ -129,8 +130,11 @@ def _sim(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     rc = run_server(cfg, args, shared={"simulator.world": world})
     wall = time.monotonic() - t0
-    print(f"[sim] summary: robots={len(world.robot_names)} sim_seconds={world.time:.1f} wall_seconds={wall:.1f} "
-          f"realtime_factor={world.time / wall if wall > 0 else 0:.2f}", flush=True)
+    print(
+        f"[sim] summary: robots={len(world.robot_names)} sim_seconds={world.time:.1f} wall_seconds={wall:.1f} "
+        f"realtime_factor={world.time / wall if wall > 0 else 0:.2f}",
+        flush=True,
+    )
     return rc
 
 
@@ -145,8 +149,12 @@ def register_serve(sub) -> None:
     p = sub.add_parser("serve", help="run a device server from a TOML driver configuration")
     p.add_argument("config_file", metavar="CONFIG", help="TOML file of [[driver]] blocks (see docs/configuration.md)")
     p.add_argument("--node", help="node name for devices written without one (overrides [server] node)")
-    p.add_argument("--require-timeout", type=_positive, default=30.0,
-                   help="seconds a driver waits for its required devices (default 30)")
+    p.add_argument(
+        "--require-timeout",
+        type=_positive,
+        default=30.0,
+        help="seconds a driver waits for its required devices (default 30)",
+    )
     add_transport_args(p)
     p.set_defaults(func=_serve)
 

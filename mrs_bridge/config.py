@@ -85,8 +85,14 @@ def load_config(path: str | Path, *, default_node: str | None = None) -> ServerC
     return parse_config(text, source=str(p), base_dir=p.resolve().parent, default_node=default_node)
 
 
-def parse_config(text: str, *, source: str = "<config>", base_dir: Path | None = None,
-                 default_node: str | None = None, known_drivers: list[str] | None = None) -> ServerConfig:
+def parse_config(
+    text: str,
+    *,
+    source: str = "<config>",
+    base_dir: Path | None = None,
+    default_node: str | None = None,
+    known_drivers: list[str] | None = None,
+) -> ServerConfig:
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
@@ -127,8 +133,7 @@ def parse_config(text: str, *, source: str = "<config>", base_dir: Path | None =
             raise ConfigError(f"{where}: 'rate' must be a positive number of Hz, not {rate!r}")
         params = {k: v for k, v in b.items() if k not in ("name", "provides", "requires", "node", "rate")}
         cfg.drivers.append(
-            DriverConfig(name, provides, requires, params, float(rate) if rate else None, where,
-                         base_dir or Path.cwd())
+            DriverConfig(name, provides, requires, params, float(rate) if rate else None, where, base_dir or Path.cwd())
         )
     seen: dict[DeviceAddr, str] = {}
     for d in cfg.drivers:

@@ -21,7 +21,6 @@ that names the missing devices.
 
 from __future__ import annotations
 
-import heapq
 import logging
 import math
 import queue
@@ -210,8 +209,13 @@ class DeviceServer:
         for slot in self.slots:
             if slot.state == "waiting" and now >= slot.deadline:
                 missing = ", ".join(map(str, sorted(slot.missing)))
-                log.error("%s: required device(s) %s did not appear within %.0f s; start the server that "
-                          "provides them, or check the 'requires' names", slot.name, missing, self.require_timeout)
+                log.error(
+                    "%s: required device(s) %s did not appear within %.0f s; start the server that "
+                    "provides them, or check the 'requires' names",
+                    slot.name,
+                    missing,
+                    self.require_timeout,
+                )
                 self._fail(slot, None)
                 continue
             if slot.state != "running" or slot.driver.rate <= 0:
@@ -229,8 +233,13 @@ class DeviceServer:
             return fn(*args)
         except Exception as e:
             if fail:
-                log.error("%s: driver failed in %s: %s: %s; its devices are withdrawn", slot.name,
-                          getattr(fn, "__name__", "?"), type(e).__name__, e)
+                log.error(
+                    "%s: driver failed in %s: %s: %s; its devices are withdrawn",
+                    slot.name,
+                    getattr(fn, "__name__", "?"),
+                    type(e).__name__,
+                    e,
+                )
                 log.debug("driver failure", exc_info=True)
                 self._fail(slot, e)
             else:
@@ -289,12 +298,17 @@ class DeviceServer:
         s = self.session
         dev = _Device(addr, slot)
         dev.pub = s.declare_publisher(keys.data_key(addr))
-        dev.event_pub = s.declare_publisher(keys.event_key(addr), reliability=zenoh.Reliability.RELIABLE,
-                                            congestion_control=zenoh.CongestionControl.BLOCK)
+        dev.event_pub = s.declare_publisher(
+            keys.event_key(addr),
+            reliability=zenoh.Reliability.RELIABLE,
+            congestion_control=zenoh.CongestionControl.BLOCK,
+        )
         dev.cmd_sub = s.declare_subscriber(
             keys.cmd_key(addr), lambda smp, a=addr: self.inbox.put(("cmd", a, smp.payload.to_bytes()))
         )
-        dev.rpc_q = s.declare_queryable(f"{keys.PREFIX}/{addr.path}/rpc/*", lambda q, a=addr: self.inbox.put(("rpc", a, q)))
+        dev.rpc_q = s.declare_queryable(
+            f"{keys.PREFIX}/{addr.path}/rpc/*", lambda q, a=addr: self.inbox.put(("rpc", a, q))
+        )
         dev.token = s.liveliness().declare_token(keys.device_key(addr))
         self.devices[addr] = dev
 
@@ -359,8 +373,10 @@ class DeviceServer:
                     result = self.describe(addr).to_dict()
                 else:
                     if op not in drv.ops(addr):
-                        raise RpcError(ErrorCode.UNKNOWN_OP,
-                                       f"{addr} has no operation {op!r}; it has: {', '.join(drv.all_ops(addr))}")
+                        raise RpcError(
+                            ErrorCode.UNKNOWN_OP,
+                            f"{addr} has no operation {op!r}; it has: {', '.join(drv.all_ops(addr))}",
+                        )
                     result = drv.on_rpc(addr, op, args) or {}
                 query.reply(reply_key, ok_reply(**result))
             except OutOfRange as e:
@@ -428,8 +444,4 @@ def make_driver_config(name: str, provides: list[str], node: str, **params) -> D
     """A driver block built in code (``rsal sim`` builds its config this way)."""
     from rsal.keys import parse_device
 
-    return DriverConfig(name, [parse_device(p, node) for p in provides], [], params, None,
-                        f"<{name} {node}>")
-
-
-heapq  # noqa: B018  (kept for future timer queues)
+    return DriverConfig(name, [parse_device(p, node) for p in provides], [], params, None, f"<{name} {node}>")

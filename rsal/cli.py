@@ -24,8 +24,11 @@ __all__ = ["main", "setup_logging"]
 
 def setup_logging(verbosity: int = 0) -> None:
     """INFO by default, DEBUG with ``-v``; one line per record on stderr."""
-    logging.basicConfig(level=logging.DEBUG if verbosity > 0 else logging.INFO,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s", datefmt="%H:%M:%S")
+    logging.basicConfig(
+        level=logging.DEBUG if verbosity > 0 else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        datefmt="%H:%M:%S",
+    )
 
 
 def _cmd_ls(args: argparse.Namespace) -> int:
@@ -45,8 +48,11 @@ def _cmd_ls(args: argparse.Namespace) -> int:
             time.sleep(0.1)
         devs = node.devices()
         if not devs:
-            print(f"rsal ls: no devices match {args.template or '**'!r} (is a device server running? try "
-                  f"'rsal sim maps/floor.world')", file=sys.stderr)
+            print(
+                f"rsal ls: no devices match {args.template or '**'!r} (is a device server running? try "
+                f"'rsal sim maps/floor.world')",
+                file=sys.stderr,
+            )
             return 1
         info: dict = {}
         for a in devs:

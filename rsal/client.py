@@ -139,7 +139,9 @@ class Fabric:
             if fut.done():
                 return
             if not got:
-                fut.set_exception(RpcError(ErrorCode.TIMEOUT, f"no reply within {timeout:g} s (is the device alive?)", key))
+                fut.set_exception(
+                    RpcError(ErrorCode.TIMEOUT, f"no reply within {timeout:g} s (is the device alive?)", key)
+                )
             elif isinstance(got[0], Exception):
                 fut.set_exception(got[0])
             else:

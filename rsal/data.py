@@ -103,9 +103,7 @@ class Position:
             raise ValueError(f"a position must be a sequence of 2 or 3 numbers (x, y[, yaw]), got {seq!r}")
         values = tuple(seq)
         if len(values) not in (2, 3):
-            raise ValueError(
-                f"a position must have 2 or 3 numbers (x, y[, yaw]), got {len(values)}: {values!r}"
-            )
+            raise ValueError(f"a position must have 2 or 3 numbers (x, y[, yaw]), got {len(values)}: {values!r}")
         names = ("x", "y", "yaw")
         return cls(*(_finite(v, f"Position.{n} in {values!r}") for n, v in zip(names, values, strict=False)))
 
@@ -201,9 +199,7 @@ class BoardObject:
 
     def __post_init__(self) -> None:
         if math.isnan(self.timeout):
-            raise ValueError(
-                f"BoardObject.timeout must be seconds (<= 0 or inf for never), got {self.timeout!r}"
-            )
+            raise ValueError(f"BoardObject.timeout must be seconds (<= 0 or inf for never), got {self.timeout!r}")
         if not math.isfinite(self.created):
             raise ValueError(f"BoardObject.created must be a finite time, got {self.created!r}")
 

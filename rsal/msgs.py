@@ -381,8 +381,12 @@ class PowerData(_Msg):
 
     @classmethod
     def from_dict(cls, m: dict) -> PowerData:
-        return cls(get_float(m, "t"), get_float(m, "volts"), get_float(m, "percent", lo=0, hi=100),
-                   get_bool(m, "charging", False))
+        return cls(
+            get_float(m, "t"),
+            get_float(m, "volts"),
+            get_float(m, "percent", lo=0, hi=100),
+            get_bool(m, "charging", False),
+        )
 
 
 # ---------------------------------------------------------------------------- simulation
@@ -428,8 +432,13 @@ class MapData(_Msg):
         raw = _need(m, "cells", True)
         if not isinstance(raw, (bytes, bytearray)) or len(raw) != w * h:
             raise MessageError(f"field 'cells' must be {w * h} bytes (width x height int8)")
-        return cls(w, h, get_float(m, "resolution", lo=1e-6), get_vec(m, "origin", 2),
-                   np.frombuffer(raw, dtype=np.int8).reshape(h, w))
+        return cls(
+            w,
+            h,
+            get_float(m, "resolution", lo=1e-6),
+            get_vec(m, "origin", 2),
+            np.frombuffer(raw, dtype=np.int8).reshape(h, w),
+        )
 
 
 # ---------------------------------------------------------------------------- describe

@@ -73,7 +73,9 @@ class DeviceNode:
         ke = zenoh.KeyExpr(keys.template_to_keyexpr(template))
         return [a for a in self.devices() if ke.intersects(zenoh.KeyExpr(keys.device_key(a)))]
 
-    def search(self, node: str | None = None, interface: str | None = None, index: int | None = None) -> list[DeviceAddr]:
+    def search(
+        self, node: str | None = None, interface: str | None = None, index: int | None = None
+    ) -> list[DeviceAddr]:
         """Alive devices with the given node / interface / index (None = any)."""
         return [
             a

@@ -46,12 +46,21 @@ def add_transport_args(p: argparse.ArgumentParser) -> None:
     """The zenoh examples' transport flags."""
     g = p.add_argument_group("transport (Zenoh)")
     g.add_argument("--mode", "-m", choices=("peer", "client", "router"), help="Zenoh mode (default peer)")
-    g.add_argument("--connect", "-e", action="append", metavar="ENDPOINT",
-                   help=f"endpoint to connect to (repeatable; default {DEFAULT_ENDPOINT})")
+    g.add_argument(
+        "--connect",
+        "-e",
+        action="append",
+        metavar="ENDPOINT",
+        help=f"endpoint to connect to (repeatable; default {DEFAULT_ENDPOINT})",
+    )
     g.add_argument("--listen", "-l", action="append", metavar="ENDPOINT", help="endpoint to listen on (repeatable)")
     g.add_argument("--config", "-c", metavar="FILE", help="a Zenoh JSON5 configuration file")
-    g.add_argument("--cfg", action="append", metavar="KEY:VALUE",
-                   help="a Zenoh configuration entry, VALUE in JSON5, e.g. --cfg 'transport/shared_memory/enabled:false'")
+    g.add_argument(
+        "--cfg",
+        action="append",
+        metavar="KEY:VALUE",
+        help="a Zenoh configuration entry, VALUE in JSON5, e.g. --cfg 'transport/shared_memory/enabled:false'",
+    )
 
 
 def port_free(endpoint: str) -> bool:

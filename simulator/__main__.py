@@ -26,15 +26,11 @@ def _positive(text: str) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m simulator", description="Run a world headless and report its speed."
-    )
+    ap = argparse.ArgumentParser(prog="python -m simulator", description="Run a world headless and report its speed.")
     ap.add_argument("world", help="a Stage .world file or a YAML world (.yaml)")
     ap.add_argument("--duration", type=_positive, default=30.0, help="simulated seconds to run (default 30)")
     pace = ap.add_mutually_exclusive_group()
-    pace.add_argument(
-        "--speedup", type=_positive, default=None, help="times real time (default: the world's)"
-    )
+    pace.add_argument("--speedup", type=_positive, default=None, help="times real time (default: the world's)")
     pace.add_argument("--fast", action="store_true", help="run as fast as possible")
     ap.add_argument("--seed", type=int, default=None, help="random seed (default: the world's)")
     ap.add_argument("--wander", action="store_true", help="let every robot wander with its laser")
@@ -67,15 +63,12 @@ def main(argv: list[str] | None = None) -> int:
     def progress(st):
         if not args.quiet:
             print(
-                f"[sim] t={st.sim_seconds:7.1f} s  wall={st.wall_seconds:6.1f} s  "
-                f"rtf={st.realtime_factor:6.2f}x",
+                f"[sim] t={st.sim_seconds:7.1f} s  wall={st.wall_seconds:6.1f} s  rtf={st.realtime_factor:6.2f}x",
                 flush=True,
             )
 
     try:
-        stats = run(
-            world, args.duration, speedup=speedup, on_step=wander if args.wander else None, progress=progress
-        )
+        stats = run(world, args.duration, speedup=speedup, on_step=wander if args.wander else None, progress=progress)
     except KeyboardInterrupt:
         print("[sim] interrupted", file=sys.stderr)
         return 130

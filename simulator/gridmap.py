@@ -71,9 +71,7 @@ class GridMap:
                 else:
                     lum = np.asarray(im.convert("L"), dtype=np.float32) / 255.0
         except FileNotFoundError:
-            raise WorldFileError(
-                f"bitmap {str(p)!r} not found; check the path (relative to the world file)"
-            ) from None
+            raise WorldFileError(f"bitmap {str(p)!r} not found; check the path (relative to the world file)") from None
         except (UnidentifiedImageError, OSError, ValueError) as e:
             raise WorldFileError(f"bitmap {str(p)!r} is not a readable image ({e}); use a PNG") from None
         occ = lum[::-1, :] < threshold  # flip so row 0 is the bottom of the map

@@ -304,9 +304,7 @@ def cast_fans(grid, fans: dict, circles: CircleIndex | None = None, *, static: b
     return out
 
 
-def cast_fans_numpy(
-    grid, fans: dict, circles: CircleIndex | None = None, *, step: float | None = None
-) -> np.ndarray:
+def cast_fans_numpy(grid, fans: dict, circles: CircleIndex | None = None, *, step: float | None = None) -> np.ndarray:
     """Reference implementation in plain numpy: every ray at once, marched in fixed sub-cell
     steps against the grid, then tested analytically against every circle. Slow and memory
     hungry; it is the benchmark baseline and a cross-check in tests."""

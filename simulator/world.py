@@ -127,18 +127,14 @@ class World:
 
     def __init__(self, spec: WorldSpec, *, seed: int | None = None, substeps: int = 2):
         if spec.interval_sim <= 0 or not math.isfinite(spec.interval_sim):
-            raise SimulatorError(
-                f"interval_sim must be a positive number of seconds, not {spec.interval_sim!r}"
-            )
+            raise SimulatorError(f"interval_sim must be a positive number of seconds, not {spec.interval_sim!r}")
         self.spec = spec
         self.seed = spec.seed if seed is None else int(seed)
         self.substeps = max(1, int(substeps))
         self.grid: GridMap | None = None
         if spec.floorplan is not None:
             fp = spec.floorplan
-            self.grid = GridMap.from_image(
-                fp.bitmap, fp.resolution, fp.origin, size=fp.size, threshold=fp.threshold
-            )
+            self.grid = GridMap.from_image(fp.bitmap, fp.resolution, fp.origin, size=fp.size, threshold=fp.threshold)
         self._build()
 
     # ------------------------------------------------------------------ construction
@@ -261,9 +257,7 @@ class World:
         try:
             return self._models[name]
         except KeyError:
-            raise ModelError(
-                f"no model named {name!r}; models: {', '.join(self._models) or 'none'}"
-            ) from None
+            raise ModelError(f"no model named {name!r}; models: {', '.join(self._models) or 'none'}") from None
 
     def _robot(self, name: str) -> _Model:
         m = self._model(name)
@@ -376,9 +370,7 @@ class World:
     def blobfinder(self, name: str, index: int = 0) -> list[Blob]:
         m = self._robot(name)
         if not 0 <= index < len(m.blobfinders):
-            raise ModelError(
-                f"robot {name!r} has {len(m.blobfinders)} blobfinder(s); index {index} does not exist"
-            )
+            raise ModelError(f"robot {name!r} has {len(m.blobfinders)} blobfinder(s); index {index} does not exist")
         return list(m.blobfinders[index].blobs)
 
     def gripper(self, name: str, index: int = 0) -> GripperState:

@@ -48,8 +48,9 @@ class Proc:
         self.args = args
         self.log_path = Path(os.environ.get("PYTEST_TMP", "/tmp")) / f"proc-{os.getpid()}-{time.monotonic_ns()}.log"
         self._log = open(self.log_path, "w+b")
-        self.p = subprocess.Popen(args, stdout=self._log, stderr=subprocess.STDOUT, cwd=cwd, env=e,
-                                  start_new_session=True)
+        self.p = subprocess.Popen(
+            args, stdout=self._log, stderr=subprocess.STDOUT, cwd=cwd, env=e, start_new_session=True
+        )
 
     @property
     def pid(self) -> int:

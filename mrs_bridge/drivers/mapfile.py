@@ -53,8 +53,9 @@ class MapfileDriver(Driver):
         occ = grid.occupied
         if cfg.param("negate", False):
             occ = ~occ
-        self.map = MapData(grid.width, grid.height, res, (float(origin[0]), float(origin[1])),
-                           np.where(occ, 1, -1).astype(np.int8))
+        self.map = MapData(
+            grid.width, grid.height, res, (float(origin[0]), float(origin[1])), np.where(occ, 1, -1).astype(np.int8)
+        )
 
     def info(self) -> dict:
         m = self.map

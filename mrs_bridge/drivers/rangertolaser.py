@@ -50,5 +50,11 @@ class RangerToLaser(Driver):
         s = self.last
         if s is None:
             return {"source": str(self.source)}
-        return {"source": str(self.source), "angle_min": s.angle_min, "angle_step": s.angle_step,
-                "samples": int(s.ranges.shape[0]), "range_min": s.range_min, "range_max": s.range_max}
+        return {
+            "source": str(self.source),
+            "angle_min": s.angle_min,
+            "angle_step": s.angle_step,
+            "samples": int(s.ranges.shape[0]),
+            "range_min": s.range_min,
+            "range_max": s.range_max,
+        }

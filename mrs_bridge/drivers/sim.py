@@ -99,7 +99,10 @@ class SimulationDriver(Driver):
         return ["get_pose", "set_pose", "models", "pause", "step", "reset", "remove_model"]
 
     def geometry(self, addr):
-        return {"interval_sim": self.world.spec.interval_sim, "speedup": self.speedup if math.isfinite(self.speedup) else 0}
+        return {
+            "interval_sim": self.world.spec.interval_sim,
+            "speedup": self.speedup if math.isfinite(self.speedup) else 0,
+        }
 
     def on_rpc(self, addr, op, args):
         from simulator import ModelError
@@ -179,7 +182,9 @@ class SimDriver(Driver):
             i = a.index
             if a.interface == "ranger":
                 if i >= len(rangers):
-                    raise ConfigError(f"{cfg.where}: model {self.model!r} has {len(rangers)} ranger(s); ranger:{i} does not exist")
+                    raise ConfigError(
+                        f"{cfg.where}: model {self.model!r} has {len(rangers)} ranger(s); ranger:{i} does not exist"
+                    )
                 self._src[a] = i
             elif a.interface in ("sonar", "laser"):
                 idx = self.sonar_idx if a.interface == "sonar" else self.laser_idx
@@ -224,14 +229,21 @@ class SimDriver(Driver):
                 self.publish(a, self._blob_msg(w, a.index))
             elif iface == "gripper":
                 st = w.gripper(self.model, a.index)
-                msg = GripperData(t, st.paddles, st.lift, int(st.inner_beam) | (int(st.outer_beam) << 1),
-                                  1 if st.carrying else 0, st.carrying)
+                msg = GripperData(
+                    t,
+                    st.paddles,
+                    st.lift,
+                    int(st.inner_beam) | (int(st.outer_beam) << 1),
+                    1 if st.carrying else 0,
+                    st.carrying,
+                )
                 self.publish(a, msg)
                 prev = self._last_grip.get(a)
                 now_state = (st.paddles, st.lift, st.carrying)
                 if prev is not None and prev != now_state:
-                    self.event(a, {"t": t, "event": "state", "paddles": st.paddles, "lift": st.lift,
-                                   "carrying": st.carrying})
+                    self.event(
+                        a, {"t": t, "event": "state", "paddles": st.paddles, "lift": st.lift, "carrying": st.carrying}
+                    )
                 self._last_grip[a] = now_state
             elif iface == "power":
                 drain = 0.002 + 0.01 * abs(v)  # % per simulated second
@@ -252,8 +264,19 @@ class SimDriver(Driver):
     def _blob_msg(self, w, index: int) -> BlobfinderData:
         spec = self.spec.blobfinders[index]
         blobs = [
-            BlobData(i, (b.color[0] << 16) | (b.color[1] << 8) | b.color[2], b.x, b.y, b.left, b.right, b.top,
-                     b.bottom, b.area, b.range, b.bearing)
+            BlobData(
+                i,
+                (b.color[0] << 16) | (b.color[1] << 8) | b.color[2],
+                b.x,
+                b.y,
+                b.left,
+                b.right,
+                b.top,
+                b.bottom,
+                b.area,
+                b.range,
+                b.bearing,
+            )
             for i, b in enumerate(w.blobfinder(self.model, index))
         ]
         return BlobfinderData(w.time, spec.image[0], spec.image[1], blobs)
@@ -264,7 +287,9 @@ class SimDriver(Driver):
             c = VelocityCmd.from_dict(msg)
             vmax, wmax = self.spec.max_speed
             if abs(c.v) > vmax + 1e-9 or abs(c.w) > wmax + 1e-9:
-                raise OutOfRange(f"v={c.v:g} m/s, w={c.w:g} rad/s exceeds the limits |v| <= {vmax:g}, |w| <= {wmax:.3g}")
+                raise OutOfRange(
+                    f"v={c.v:g} m/s, w={c.w:g} rad/s exceeds the limits |v| <= {vmax:g}, |w| <= {wmax:.3g}"
+                )
             if c.vy != 0.0:
                 raise OutOfRange(f"vy={c.vy:g}: a differential drive cannot move sideways")
             if self.motors:
@@ -312,23 +337,38 @@ class SimDriver(Driver):
     def geometry(self, addr) -> dict[str, Any]:
         s = self.spec
         if addr.interface == "position2d":
-            return {"size": list(s.size[:2]), "max_speed": list(s.max_speed), "max_accel": list(s.max_accel),
-                    "frame": "gps" if self.gps else "odom", "model": self.model}
+            return {
+                "size": list(s.size[:2]),
+                "max_speed": list(s.max_speed),
+                "max_accel": list(s.max_accel),
+                "frame": "gps" if self.gps else "odom",
+                "model": self.model,
+            }
         if addr.interface in ("ranger", "sonar", "laser"):
             r = self.world.rangers(self.model)[self._src[addr]]
             return {
                 "kind": r.kind,
                 "pose": list(r.pose),
                 "sensors": [
-                    {"pose": list(x.pose), "fov": x.fov, "samples": x.samples, "range_min": x.range_min,
-                     "range_max": x.range_max}
+                    {
+                        "pose": list(x.pose),
+                        "fov": x.fov,
+                        "samples": x.samples,
+                        "range_min": x.range_min,
+                        "range_max": x.range_max,
+                    }
                     for x in r.sensors
                 ],
             }
         if addr.interface == "blobfinder":
             b = s.blobfinders[addr.index]
-            return {"pose": list(b.pose), "fov": b.fov, "range_max": b.range_max, "image": list(b.image),
-                    "colors": [(c[0] << 16) | (c[1] << 8) | c[2] for c in b.colors]}
+            return {
+                "pose": list(b.pose),
+                "fov": b.fov,
+                "range_max": b.range_max,
+                "image": list(b.image),
+                "colors": [(c[0] << 16) | (c[1] << 8) | c[2] for c in b.colors],
+            }
         if addr.interface == "gripper":
             g = s.grippers[addr.index]
             return {"pose": list(g.pose), "size": list(g.size), "capacity": 1}

@@ -20,8 +20,14 @@ from rsal.msgs import ErrorCode, RpcError
 
 WORLD = str(MAPS / "testroom.world")
 R0 = {
-    ("position2d", 0), ("ranger", 0), ("ranger", 1), ("sonar", 0), ("laser", 0),
-    ("blobfinder", 0), ("gripper", 0), ("power", 0),
+    ("position2d", 0),
+    ("ranger", 0),
+    ("ranger", 1),
+    ("sonar", 0),
+    ("laser", 0),
+    ("blobfinder", 0),
+    ("gripper", 0),
+    ("power", 0),
 }
 
 
@@ -106,8 +112,13 @@ def test_malformed_input_never_kills_the_server(procs, port, fabric_factory):
                 except RpcError as e:
                     errors.append(e.code)
     assert server.alive()
-    assert set(errors) <= {ErrorCode.BAD_REQUEST, ErrorCode.UNKNOWN_OP, ErrorCode.OUT_OF_RANGE,
-                           ErrorCode.NOT_FOUND, ErrorCode.UNAVAILABLE}
+    assert set(errors) <= {
+        ErrorCode.BAD_REQUEST,
+        ErrorCode.UNKNOWN_OP,
+        ErrorCode.OUT_OF_RANGE,
+        ErrorCode.NOT_FOUND,
+        ErrorCode.UNAVAILABLE,
+    }
     assert ErrorCode.BAD_REQUEST in errors and ErrorCode.UNKNOWN_OP in errors
     # the robot did not move from junk commands, and still obeys a correct one
     pos = node.device("r0:position2d:0")

@@ -55,9 +55,7 @@ def test_oblique_ray_hits_wall_at_analytic_distance():
     # but the north face y = 3.85 first: 3.35 / sin(30deg) = 6.7 > 5.6 -> east at 5.6003.
     g = room()
     th = math.radians(30)
-    assert cast_fans(g, fan(0.0, 0.5, th))[0] == pytest.approx(
-        min(4.85 / math.cos(th), 3.35 / math.sin(th)), abs=1e-9
-    )
+    assert cast_fans(g, fan(0.0, 0.5, th))[0] == pytest.approx(min(4.85 / math.cos(th), 3.35 / math.sin(th)), abs=1e-9)
 
 
 def test_max_range_when_nothing_is_hit():
@@ -66,17 +64,13 @@ def test_max_range_when_nothing_is_hit():
 
 def test_circle_occludes_wall_and_owner_is_ignored():
     g = room()
-    circles = CircleIndex(
-        np.array([2.0, 0.0]), np.array([2.0, 2.0]), np.array([0.25, 0.25]), np.array([7, 3])
-    )
+    circles = CircleIndex(np.array([2.0, 0.0]), np.array([2.0, 2.0]), np.array([0.25, 0.25]), np.array([7, 3]))
     # Ray from the owner's centre (owner 3 at (0, 2)) east: its own circle is ignored, the other
     # circle at x = 2 with r = 0.25 is hit at 1.75.
     assert cast_fans(g, fan(0.0, 2.0, 0.0, owner=3), circles)[0] == pytest.approx(1.75, abs=1e-9)
     # Tangent rays miss; a ray just above the circle reaches the wall.
     up = math.atan2(0.26, 2.0)
-    assert cast_fans(g, fan(0.0, 2.0, up, owner=3), circles)[0] == pytest.approx(
-        4.85 / math.cos(up), abs=1e-9
-    )
+    assert cast_fans(g, fan(0.0, 2.0, up, owner=3), circles)[0] == pytest.approx(4.85 / math.cos(up), abs=1e-9)
 
 
 def test_fan_wrapping_past_pi_sees_circles_behind():
@@ -116,8 +110,6 @@ def test_matches_numpy_reference_on_random_fans():
 
 
 def test_circle_index_finds_circles_spanning_many_cells():
-    circles = CircleIndex(
-        np.array([0.0, 30.0]), np.array([0.0, 0.0]), np.array([3.0, 0.5]), np.array([1, 2]), cell=1.0
-    )
+    circles = CircleIndex(np.array([0.0, 30.0]), np.array([0.0, 0.0]), np.array([3.0, 0.5]), np.array([1, 2]), cell=1.0)
     out = cast_fans(None, fan(-10.0, 2.5, 0.0, rmax=50.0), circles)
     assert out[0] == pytest.approx(10.0 - math.sqrt(9 - 2.5**2), abs=1e-9)

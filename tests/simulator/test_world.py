@@ -39,9 +39,7 @@ def laser(noise=0.0):
         name="laser",
         kind="laser",
         pose=(0.13, 0.0, 0.0),
-        sensors=[
-            RangerSensorSpec(range_min=0.02, range_max=5.6, fov=math.radians(240), samples=682, noise=noise)
-        ],
+        sensors=[RangerSensorSpec(range_min=0.02, range_max=5.6, fov=math.radians(240), samples=682, noise=noise)],
     )
 
 
@@ -331,9 +329,7 @@ def test_set_get_pose_add_remove_pause_reset(tmp_path):
     w.step()
     assert w.time > t
     w.reset()
-    assert (
-        w.time == 0.0 and w.get_pose("r0") == pytest.approx((0.0, 0.0, 0.0)) and "proxy" not in w.model_names
-    )
+    assert w.time == 0.0 and w.get_pose("r0") == pytest.approx((0.0, 0.0, 0.0)) and "proxy" not in w.model_names
 
 
 def test_errors_name_the_model_and_the_fix(tmp_path):

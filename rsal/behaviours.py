@@ -1,0 +1,172 @@
+"""Subsumption behaviours of the Pioneer (thesis 3.6.2.4, fig. 3.23; Brooks 1986).
+
+Laser and sonar ranges are fused by taking the minimum per direction ("for reasons of safety",
+fig. 3.23): every beam is turned into a point in the robot frame and the points are binned into
+sectors around the robot, each sector keeping its nearest point. Behaviours read the sectors; a
+higher layer that triggers overrides the motor output of every layer below it:
+
+1. **escape** (highest): the robot is stalled, or something is closer than ``stop_dist`` ahead for
+   longer than ``stuck_time``: back up while turning towards the more open side for
+   ``escape_time`` seconds.
+2. **avoid**: an obstacle within ``avoid_dist`` in the front sectors: slow down and turn away
+   from the nearer side.
+3. **wallfollow** (when enabled): keep the wall on ``side`` at ``wall_dist``: a proportional
+   controller on the side distance and its angle, turning towards open space at inner corners
+   and round outer corners to find the wall again.
+4. **command** (lowest): the user's ``set_command(v, w)``.
+
+:class:`Subsumption` is a pure state machine (ranges and time in, ``(v, w)`` and the active
+layer out) so it is unit-tested without a network; :class:`rsal.robot.Pioneer` feeds it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["BehaviourParams", "Sectors", "Subsumption", "fuse"]
+
+SECTOR_COUNT = 36  # 10 degrees each, sector 0 centred straight ahead, counter-clockwise
+
+
+@dataclass
+class BehaviourParams:
+    """Distances in metres, speeds in m/s and rad/s, times in seconds; Pioneer defaults."""
+
+    radius: float = 0.25  # robot's half width, used to judge clearance
+    cruise_speed: float = 0.4
+    turn_rate: float = 0.8
+    stop_dist: float = 0.35  # from the robot centre
+    avoid_dist: float = 0.7
+    wall_dist: float = 0.6
+    stuck_time: float = 2.0
+    escape_time: float = 1.5
+    escape_speed: float = -0.15
+    side: str = "left"  # wall to follow
+
+
+class Sectors:
+    """Nearest obstacle distance (from the robot centre) in each of ``SECTOR_COUNT`` directions."""
+
+    def __init__(self, dist: np.ndarray):
+        self.dist = dist
+
+    @classmethod
+    def empty(cls, far: float = math.inf) -> Sectors:
+        return cls(np.full(SECTOR_COUNT, far))
+
+    def min_between(self, a0_deg: float, a1_deg: float) -> float:
+        """Minimum over the directions from ``a0`` to ``a1`` degrees (counter-clockwise)."""
+        width = 360.0 / SECTOR_COUNT
+        i0 = int(math.floor((a0_deg + width / 2) / width))
+        i1 = int(math.floor((a1_deg + width / 2) / width))
+        idx = np.arange(i0, i1 + 1) % SECTOR_COUNT
+        return float(self.dist[idx].min())
+
+
+def fuse(points_xy: list[np.ndarray], far: float = math.inf) -> Sectors:
+    """Bin obstacle points (each an (n, 2) array in the robot frame) into sectors by minimum."""
+    d = np.full(SECTOR_COUNT, far)
+    pts = [p for p in points_xy if p is not None and len(p)]
+    if not pts:
+        return Sectors(d)
+    p = np.concatenate(pts)
+    r = np.hypot(p[:, 0], p[:, 1])
+    ang = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
+    width = 360.0 / SECTOR_COUNT
+    idx = np.floor((ang + width / 2) / width).astype(int) % SECTOR_COUNT
+    np.minimum.at(d, idx, r)
+    return Sectors(d)
+
+
+def beam_points(poses: np.ndarray, ranges: np.ndarray, range_max: float) -> np.ndarray:
+    """End points (robot frame) of the beams that hit something (range < range_max)."""
+    n = min(len(poses), len(ranges))
+    poses, ranges = poses[:n], np.asarray(ranges[:n], dtype=float)
+    hit = np.isfinite(ranges) & (ranges < range_max * 0.999)
+    p = poses[hit]
+    r = ranges[hit]
+    return np.column_stack([p[:, 0] + r * np.cos(p[:, 2]), p[:, 1] + r * np.sin(p[:, 2])])
+
+
+class Subsumption:
+    """The behaviour layers as a state machine; call :meth:`step` at about 10 Hz."""
+
+    def __init__(self, params: BehaviourParams | None = None):
+        self.p = params or BehaviourParams()
+        self.command = (0.0, 0.0)
+        self.wallfollow = False
+        self.state = "idle"
+        self._blocked_since: float | None = None
+        self._escape_until = -math.inf
+        self._escape_turn = 1.0
+        self.escapes = 0
+
+    def set_command(self, v: float, w: float) -> None:
+        self.command = (float(v), float(w))
+        self.wallfollow = False
+
+    def set_wallfollow(self, on: bool = True, side: str | None = None) -> None:
+        self.wallfollow = bool(on)
+        if side is not None:
+            if side not in ("left", "right"):
+                raise ValueError(f"side {side!r} must be 'left' or 'right'")
+            self.p.side = side
+
+    def step(self, s: Sectors, now: float, stalled: bool = False) -> tuple[float, float]:
+        p = self.p
+        front = s.min_between(-30, 30)
+        left = s.min_between(30, 100)
+        right = s.min_between(-100, -30)
+        moving_intent = self.wallfollow or abs(self.command[0]) > 1e-3
+
+        # 1. escape
+        if now < self._escape_until:
+            self.state = "escape"
+            return (p.escape_speed, p.turn_rate * self._escape_turn)
+        blocked = moving_intent and (stalled or front < p.stop_dist)
+        if blocked:
+            if self._blocked_since is None:
+                self._blocked_since = now
+            elif now - self._blocked_since >= p.stuck_time:
+                self._blocked_since = None
+                self._escape_until = now + p.escape_time
+                self._escape_turn = 1.0 if left > right else -1.0
+                self.escapes += 1
+                self.state = "escape"
+                return (p.escape_speed, p.turn_rate * self._escape_turn)
+        else:
+            self._blocked_since = None
+
+        # 2. avoid
+        if moving_intent and front < p.avoid_dist:
+            self.state = "avoid"
+            turn = 1.0 if left >= right else -1.0
+            if self.wallfollow:  # turn away from the followed wall
+                turn = -1.0 if p.side == "left" else 1.0
+            v = (
+                0.0
+                if front < p.stop_dist
+                else p.cruise_speed * (front - p.stop_dist) / (p.avoid_dist - p.stop_dist) * 0.5
+            )
+            return (v, p.turn_rate * turn)
+
+        # 3. wall-follow
+        if self.wallfollow:
+            self.state = "wallfollow"
+            sign = 1.0 if p.side == "left" else -1.0
+            side_d = s.min_between(60, 120) if sign > 0 else s.min_between(-120, -60)
+            diag = s.min_between(30, 60) if sign > 0 else s.min_between(-60, -30)
+            if min(side_d, diag) > 2.5 * p.wall_dist:
+                # no wall: curve towards the side to find one
+                return (p.cruise_speed * 0.8, sign * p.turn_rate * 0.4)
+            err = min(side_d, diag * math.cos(math.radians(45))) - p.wall_dist
+            w = sign * float(np.clip(1.5 * err, -p.turn_rate, p.turn_rate))
+            v = p.cruise_speed * (0.6 if abs(err) > 0.3 else 1.0)
+            return (v, w)
+
+        # 4. command
+        self.state = "command" if moving_intent or self.command[1] else "idle"
+        return self.command

@@ -1,0 +1,227 @@
+"""Robots of the RSAL layer (thesis 3.6.2.2): ``Robot``, ``Pioneer`` and ``ExploreRobot``.
+
+A :class:`Robot` is made from a list of device proxies, anywhere on the fabric; it needs a
+``position2d`` and at least one ranger (laser or sonar), and uses what else it is given
+(``localize``, ``simulation``, ``blobfinder``, ``gripper``...). Like the thesis's robots, which
+were devices with a thread, it runs its :meth:`Robot.update` every ``period`` seconds (100 ms by
+default, the thesis's sleep time) on its own thread until :meth:`Robot.shutdown`.
+
+:class:`Pioneer` adds the subsumption behaviour of :mod:`rsal.behaviours` (sonar+laser fusion,
+avoid, escape when stuck, wall-follow) with ``set_command`` and ``set_wallfollow``; the laser can
+be switched off per robot (the thesis's "Laser" flag, 3.5), leaving sonar only.
+:class:`ExploreRobot` also watches a blobfinder and reports each newly seen blob with its world
+position.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterable
+
+import numpy as np
+
+from .behaviours import BehaviourParams, Subsumption, beam_points, fuse
+from .data import BlobfinderBlob, Position
+from .devices import Blobfinder, Device, Gripper, Laser, Position2d, Ranger, Simulation, Sonar
+
+__all__ = ["Robot", "Pioneer", "ExploreRobot", "RobotError"]
+
+log = logging.getLogger(__name__)
+
+
+class RobotError(ValueError):
+    """A robot cannot be made from the given devices."""
+
+
+class Robot:
+    def __init__(self, devices: Iterable[Device], *, name: str | None = None, period: float = 0.1, laser: bool = True):
+        devs = list(devices)
+        pos = [d for d in devs if isinstance(d, Position2d)]
+        if not pos:
+            raise RobotError(f"a robot needs a position2d device; got {', '.join(str(d.addr) for d in devs) or 'none'}")
+        self.position2d: Position2d = pos[0]
+        self.lasers: list[Ranger] = [d for d in devs if isinstance(d, Laser)]
+        self.sonars: list[Ranger] = [d for d in devs if isinstance(d, Sonar)]
+        # a generic ranger counts as a laser unless a dedicated laser/sonar of the same node exists
+        if not self.lasers and not self.sonars:
+            self.lasers = [d for d in devs if type(d) is Ranger]
+        if not self.lasers and not self.sonars:
+            raise RobotError(f"robot {name or self.position2d.node!r} needs a ranger (laser or sonar)")
+        self.laser_enabled = bool(laser)
+        self.simulation: Simulation | None = next((d for d in devs if isinstance(d, Simulation)), None)
+        self.blobfinder: Blobfinder | None = next((d for d in devs if isinstance(d, Blobfinder)), None)
+        self.gripper: Gripper | None = next((d for d in devs if isinstance(d, Gripper)), None)
+        self.localize = next((d for d in devs if d.interface == "localize"), None)
+        self.devices = devs
+        self.name = name or self.position2d.node
+        self.period = float(period)
+        self.goal: Position | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.updates = 0
+
+    # ------------------------------------------------------------------ pose
+    @property
+    def position(self) -> Position | None:
+        """The best pose known: localized if a localize device is given, else odometry."""
+        if self.localize is not None and getattr(self.localize, "position", None) is not None:
+            return self.localize.position
+        return self.position2d.position
+
+    def set_position(self, pose: Position) -> None:
+        """Set the robot's pose belief (odometry/localization) and, in a simulation, move its
+        simulated body there (thesis 3.6.2.2)."""
+        if self.localize is not None and hasattr(self.localize, "set_position"):
+            self.localize.set_position(pose)
+        else:
+            self.position2d.set_odometry(pose)
+        if self.simulation is not None:
+            self.simulation.set_pose(self.name, pose)
+
+    # ------------------------------------------------------------------ sensing
+    def obstacle_points(self) -> list[np.ndarray]:
+        """Obstacle points in the robot frame from the enabled rangers."""
+        out = []
+        rangers = (self.lasers if self.laser_enabled else []) + self.sonars
+        for r in rangers:
+            m = r.latest
+            if m is None or not r.alive:
+                continue
+            try:
+                poses = r.sensor_poses()
+            except Exception as e:  # describe not answered yet
+                log.debug("%s: no geometry yet: %s", r.addr, e)
+                continue
+            out.append(beam_points(poses, m.ranges, m.range_max or float(np.max(m.ranges))))
+        return out
+
+    # ------------------------------------------------------------------ run loop
+    def start(self) -> Robot:
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name=f"robot-{self.name}", daemon=True)
+            self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                self.update()
+                self.updates += 1
+            except Exception:
+                log.exception("%s: update failed", self.name)
+            next_t += self.period
+            delay = next_t - time.monotonic()
+            if delay < -self.period:
+                next_t = time.monotonic()
+                delay = 0
+            self._stop.wait(max(0.0, delay))
+
+    def update(self) -> None:
+        """One cycle of the robot's own behaviour (override)."""
+
+    def stop(self) -> None:
+        self.position2d.stop()
+
+    def shutdown(self) -> None:
+        """Stop the run loop and the motors."""
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(2.0)
+        try:
+            self.stop()
+        except Exception:
+            pass
+
+
+class Pioneer(Robot):
+    """A Pioneer with the subsumption behaviour of thesis 3.6.2.4."""
+
+    def __init__(self, devices: Iterable[Device], *, params: BehaviourParams | None = None, **kw):
+        super().__init__(devices, **kw)
+        self.behaviour = Subsumption(params)
+        self._last_cmd: tuple[float, float] | None = None
+        self._state_listeners: list[Callable[[str], None]] = []
+        self.distance = 0.0  # metres travelled according to odometry
+        self._last_pose: Position | None = None
+        try:
+            vmax, wmax = self.position2d.limits()
+            bp = self.behaviour.p
+            bp.cruise_speed = min(bp.cruise_speed, vmax)
+            bp.turn_rate = min(bp.turn_rate, wmax)
+        except Exception:  # limits are a nicety; describe may not be reachable yet
+            pass
+
+    @property
+    def state(self) -> str:
+        return self.behaviour.state
+
+    def on_state(self, fn: Callable[[str], None]) -> None:
+        self._state_listeners.append(fn)
+
+    def set_command(self, v: float, w: float) -> None:
+        """Manual speed and turn rate; obstacle avoidance and escape still apply."""
+        self.behaviour.set_command(v, w)
+
+    def set_wallfollow(self, on: bool = True, side: str | None = None) -> None:
+        self.behaviour.set_wallfollow(on, side)
+
+    def update(self) -> None:
+        pos = self.position2d
+        if pos.latest is None or not pos.alive:
+            return
+        cur = pos.position
+        if self._last_pose is not None and cur is not None:
+            self.distance += cur.distance_to(self._last_pose)
+        self._last_pose = cur
+        sectors = fuse(self.obstacle_points())
+        before = self.behaviour.state
+        v, w = self.behaviour.step(sectors, time.monotonic(), pos.stalled)
+        if self.behaviour.state != before:
+            for fn in self._state_listeners:
+                fn(self.behaviour.state)
+        cmd = (round(v, 3), round(w, 3))
+        # Re-send every cycle while moving (a lost command must not leave the robot stuck);
+        # send a stop once.
+        if cmd != self._last_cmd or cmd != (0.0, 0.0):
+            pos.set_velocity(*cmd)
+            self._last_cmd = cmd
+
+
+class ExploreRobot(Pioneer):
+    """A Pioneer that wall-follows and reports blobs its blobfinder sees (thesis 4.2.2)."""
+
+    def __init__(self, devices: Iterable[Device], *, merge_dist: float = 0.5, **kw):
+        super().__init__(devices, **kw)
+        if self.blobfinder is None:
+            raise RobotError(f"an ExploreRobot needs a blobfinder; {self.name} has none")
+        self.merge_dist = merge_dist
+        self.found: list[BlobfinderBlob] = []
+        self._blob_listeners: list[Callable[[BlobfinderBlob], None]] = []
+
+    def on_blob(self, fn: Callable[[BlobfinderBlob], None]) -> None:
+        self._blob_listeners.append(fn)
+
+    def update(self) -> None:
+        super().update()
+        pose = self.position
+        if pose is None:
+            return
+        for b in self.blobfinder.blobs:
+            wp = b.world_position(pose)
+            if any(f.discovered is not None and f.discovered.distance_to(wp) < self.merge_dist for f in self.found):
+                continue
+            found = BlobfinderBlob(
+                b.id, b.color, b.area, b.x, b.y, b.left, b.right, b.top, b.bottom, b.range, b.bearing, discovered=wp
+            )
+            self.found.append(found)
+            for fn in self._blob_listeners:
+                fn(found)
+
+
+def robot_devices(node, name: str, *, timeout: float = 10.0) -> list[Device]:
+    """Proxies of every device of node ``name`` that a DeviceNode sees (waits for position2d)."""
+    node.wait_for(f"{name}:position2d:*", 1, timeout)
+    return [node.device(a) for a in node.search(node=name)]
