@@ -51,7 +51,7 @@ class Dispatcher:
             except Exception:
                 log.exception("listener %r failed", getattr(fn, "__qualname__", fn))
 
-    def close(self, timeout: float = 2.0) -> None:
+    def close(self, timeout: float = 5.0) -> None:
         if not self._closed:
             self._closed = True
             self._q.put(None)
@@ -118,7 +118,7 @@ class Fabric:
         return DeviceNode(self, templates or ("**",))
 
     # ------------------------------------------------------------------ rpc and cmd
-    def rpc_async(self, addr: DeviceAddr, op: str, args: dict | None = None, *, timeout: float = 2.0) -> Future:
+    def rpc_async(self, addr: DeviceAddr, op: str, args: dict | None = None, *, timeout: float = 5.0) -> Future:
         """Call ``rsal/<addr>/rpc/<op>``; the future resolves to the reply map or raises RpcError."""
         fut: Future = Future()
         key = keys.rpc_key(addr, op)
@@ -159,7 +159,7 @@ class Fabric:
             fut.set_exception(RpcError(ErrorCode.UNAVAILABLE, f"cannot send the query: {e}", key))
         return fut
 
-    def rpc(self, addr: DeviceAddr, op: str, args: dict | None = None, *, timeout: float = 2.0) -> dict:
+    def rpc(self, addr: DeviceAddr, op: str, args: dict | None = None, *, timeout: float = 5.0) -> dict:
         """Blocking :meth:`rpc_async` (do not call it from a Zenoh callback)."""
         return self.rpc_async(addr, op, args, timeout=timeout).result(timeout + 1.0)
 

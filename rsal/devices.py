@@ -159,13 +159,13 @@ class Device:
         """Seconds since the latest data (inf if none)."""
         return time.monotonic() - self.received_at if self.latest is not None else math.inf
 
-    def rpc(self, op: str, timeout: float = 2.0, **args) -> dict:
+    def rpc(self, op: str, timeout: float = 5.0, **args) -> dict:
         return self.fabric.rpc(self.addr, op, args, timeout=timeout)
 
-    def rpc_async(self, op: str, timeout: float = 2.0, **args) -> Future:
+    def rpc_async(self, op: str, timeout: float = 5.0, **args) -> Future:
         return self.fabric.rpc_async(self.addr, op, args, timeout=timeout)
 
-    def describe(self, timeout: float = 2.0) -> msgs.Describe:
+    def describe(self, timeout: float = 5.0) -> msgs.Describe:
         if self._describe is None:
             self._describe = msgs.Describe.from_dict(self.rpc("describe", timeout=timeout))
         return self._describe
