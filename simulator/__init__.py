@@ -7,6 +7,7 @@ fixed-step clock, and loaders for Stage ``.world`` files and a YAML world format
 """
 
 from .errors import ModelError, SimulatorError, WorldFileError
+from .loader import load_world
 from .spec import (
     BlobfinderSpec,
     FloorplanSpec,
@@ -28,4 +29,5 @@ __all__ = [
     "SimulatorError",
     "WorldFileError",
     "WorldSpec",
+    "load_world",
 ]
