@@ -94,6 +94,25 @@ def _march(dist, occ, res, ox0, oy0, px, py, c, s, rmax):
     return rmax
 
 
+@nb.njit(cache=True, inline="always")
+def _mix(z):
+    """splitmix64 finaliser: a well-spread 64-bit hash."""
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+@nb.njit(cache=True, inline="always")
+def _gauss(seed, step, i):
+    """A standard normal number that depends only on (seed, step, i) (Box-Muller)."""
+    k = _mix(np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(step)) ^ np.uint64(i)
+    a = _mix(k)
+    b = _mix(k ^ np.uint64(0xD1B54A32D192ED03))
+    u1 = ((a >> np.uint64(11)) + np.uint64(1)) * (1.0 / 9007199254740993.0)
+    u2 = (b >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+
+
 @nb.njit(cache=True, parallel=True)
 def _cast_fans(
     dist,
@@ -121,6 +140,10 @@ def _cast_fans(
     hstart,
     hitems,
     use_static,
+    fnoise,
+    frmin,
+    seed,
+    step,
     out,
 ):
     nfans = fx.shape[0]
@@ -139,66 +162,79 @@ def _cast_fans(
                 out[off + i] = _march(dist, occ, res, ox0, oy0, px, py, math.cos(a), math.sin(a), rmax)
             else:
                 out[off + i] = rmax
-        if ncirc == 0:
-            continue
-        # Circles within range, through the hash grid.
-        gx0 = int(math.floor((px - rmax - hx0) / hcell))
-        gx1 = int(math.floor((px + rmax - hx0) / hcell))
-        gy0 = int(math.floor((py - rmax - hy0) / hcell))
-        gy1 = int(math.floor((py + rmax - hy0) / hcell))
-        if gx0 < 0:
-            gx0 = 0
-        if gy0 < 0:
-            gy0 = 0
-        if gx1 > hw - 1:
-            gx1 = hw - 1
-        if gy1 > hh - 1:
-            gy1 = hh - 1
-        for gy in range(gy0, gy1 + 1):
-            for gx in range(gx0, gx1 + 1):
-                cell = gy * hw + gx
-                for k in range(hstart[cell], hstart[cell + 1]):
-                    j = hitems[k]
-                    if cown[j] == fowner[f]:
-                        continue
-                    dx = cx[j] - px
-                    dy = cy[j] - py
-                    r = cr[j]
-                    d2 = dx * dx + dy * dy
-                    d = math.sqrt(d2)
-                    if d - r >= rmax or d <= r:
-                        continue
-                    phi = math.atan2(dy, dx)
-                    half = math.asin(r / d)
-                    rel = (phi - th0) % _TWO_PI
-                    # Two windows: rel and rel - 2*pi (fans may start anywhere).
-                    for wrap in range(2):
-                        centre = rel - wrap * _TWO_PI
-                        if dth > 0.0:
-                            lo = int(math.ceil((centre - half) / dth))
-                            hi = int(math.floor((centre + half) / dth))
-                        else:
-                            lo = 0
-                            hi = 0
-                            if abs(centre) > half:
-                                continue
-                        if lo < 0:
-                            lo = 0
-                        if hi > n - 1:
-                            hi = n - 1
-                        for i in range(lo, hi + 1):
-                            a = th0 + i * dth
-                            c = math.cos(a)
-                            s = math.sin(a)
-                            proj = dx * c + dy * s
-                            if proj <= 0.0:
-                                continue
-                            perp2 = d2 - proj * proj
-                            if perp2 >= r * r:
-                                continue
-                            t = proj - math.sqrt(r * r - perp2)
-                            if t < out[off + i]:
-                                out[off + i] = t
+        if ncirc > 0:
+            # Circles within range, through the hash grid.
+            gx0 = int(math.floor((px - rmax - hx0) / hcell))
+            gx1 = int(math.floor((px + rmax - hx0) / hcell))
+            gy0 = int(math.floor((py - rmax - hy0) / hcell))
+            gy1 = int(math.floor((py + rmax - hy0) / hcell))
+            if gx0 < 0:
+                gx0 = 0
+            if gy0 < 0:
+                gy0 = 0
+            if gx1 > hw - 1:
+                gx1 = hw - 1
+            if gy1 > hh - 1:
+                gy1 = hh - 1
+            for gy in range(gy0, gy1 + 1):
+                for gx in range(gx0, gx1 + 1):
+                    cell = gy * hw + gx
+                    for k in range(hstart[cell], hstart[cell + 1]):
+                        j = hitems[k]
+                        if cown[j] == fowner[f]:
+                            continue
+                        dx = cx[j] - px
+                        dy = cy[j] - py
+                        r = cr[j]
+                        d2 = dx * dx + dy * dy
+                        d = math.sqrt(d2)
+                        if d - r >= rmax or d <= r:
+                            continue
+                        phi = math.atan2(dy, dx)
+                        half = math.asin(r / d)
+                        rel = (phi - th0) % _TWO_PI
+                        # Two windows: rel and rel - 2*pi (fans may start anywhere).
+                        for wrap in range(2):
+                            centre = rel - wrap * _TWO_PI
+                            if dth > 0.0:
+                                lo = int(math.ceil((centre - half) / dth))
+                                hi = int(math.floor((centre + half) / dth))
+                            else:
+                                lo = 0
+                                hi = 0
+                                if abs(centre) > half:
+                                    continue
+                            if lo < 0:
+                                lo = 0
+                            if hi > n - 1:
+                                hi = n - 1
+                            for i in range(lo, hi + 1):
+                                a = th0 + i * dth
+                                c = math.cos(a)
+                                s = math.sin(a)
+                                proj = dx * c + dy * s
+                                if proj <= 0.0:
+                                    continue
+                                perp2 = d2 - proj * proj
+                                if perp2 >= r * r:
+                                    continue
+                                t = proj - math.sqrt(r * r - perp2)
+                                if t < out[off + i]:
+                                    out[off + i] = t
+
+        # Range noise and limits, with a counter-based generator: the same seed, step and ray
+        # give the same noise whichever thread runs the fan (deterministic in parallel).
+        sd = fnoise[f]
+        lo_r = frmin[f]
+        for i in range(n):
+            r = out[off + i]
+            if sd > 0.0 and r < rmax:
+                r += sd * _gauss(seed, step, off + i)
+            if r < lo_r:
+                r = lo_r
+            elif r > rmax:
+                r = rmax
+            out[off + i] = r
 
 
 class CircleIndex:
@@ -249,12 +285,22 @@ class CircleIndex:
         return cls(z, z, z, np.zeros(0, dtype=np.int64))
 
 
-def cast_fans(grid, fans: dict, circles: CircleIndex | None = None, *, static: bool = True) -> np.ndarray:
+def cast_fans(
+    grid,
+    fans: dict,
+    circles: CircleIndex | None = None,
+    *,
+    static: bool = True,
+    seed: int = 0,
+    step: int = 0,
+) -> np.ndarray:
     """Cast every ray of every fan; returns one float64 range per ray, fans concatenated in order.
 
     ``grid`` is a :class:`~simulator.gridmap.GridMap` (or None for open space); ``fans`` holds
     equal-length arrays ``x, y, th0, dth, n, rmax, owner`` (owner = the circle owner id the fan
-    ignores, -1 for none). A ray that hits nothing reads ``rmax``.
+    ignores, -1 for none) and optionally ``noise`` (range noise std, m) and ``rmin``. A ray that
+    hits nothing reads ``rmax``; hits get Gaussian noise drawn from ``(seed, step, ray index)``
+    and are clipped to ``[rmin, rmax]``.
     """
     fx = np.ascontiguousarray(fans["x"], dtype=np.float64)
     n = np.ascontiguousarray(fans["n"], dtype=np.int64)
@@ -299,6 +345,10 @@ def cast_fans(grid, fans: dict, circles: CircleIndex | None = None, *, static: b
         circles.start,
         circles.items,
         bool(static),
+        np.ascontiguousarray(fans.get("noise", np.zeros(fx.shape[0])), dtype=np.float64),
+        np.ascontiguousarray(fans.get("rmin", np.zeros(fx.shape[0])), dtype=np.float64),
+        np.uint64(seed & 0xFFFFFFFFFFFFFFFF),
+        np.int64(step),
         out,
     )
     return out

@@ -479,12 +479,14 @@ class World:
     def _rebuild_fans(self) -> None:
         """Flatten every robot's ranger sensors into fan tables (done when models change)."""
         rob, lx, ly, lth, th0, dth, nr, rmin, rmax, noise, every = ([] for _ in range(11))
-        rangers: list[tuple[_Model, int, int, int, int, int]] = []  # model, index, ray off, rays, k, m
+        # model, ranger index, its first fan, ray offset, ray count, transducers, rays per transducer
+        rangers: list[tuple[_Model, int, int, int, int, int, int]] = []
         ray = 0
         dt = self.spec.interval_sim
         for m in self._robots:
             for ri, rs in enumerate(m.rangers):
                 start = ray
+                first_fan = len(rob)
                 sonar = rs.kind == "sonar" or all(s.samples <= 1 for s in rs.sensors)
                 k_every = max(1, int(round(rs.interval / dt)))
                 px, py, pa = rs.pose
@@ -518,9 +520,9 @@ class World:
                 total = ray - start
                 if sonar:
                     per = SONAR_SUBRAYS if rs.sensors and rs.sensors[0].fov > 0 else 1
-                    rangers.append((m, ri, start, total, len(rs.sensors), per))
+                    rangers.append((m, ri, first_fan, start, total, len(rs.sensors), per))
                 else:
-                    rangers.append((m, ri, start, total, 1, total))
+                    rangers.append((m, ri, first_fan, start, total, 1, total))
         f = {
             "robot": np.asarray(rob, dtype=np.int64),
             "lx": np.asarray(lx, dtype=float),
@@ -534,10 +536,6 @@ class World:
             "every": np.asarray(every, dtype=np.int64),
         }
         n = f["n"]
-        f["ray_rmin"] = np.repeat(f["rmin"], n)
-        f["ray_rmax"] = np.repeat(f["rmax"], n)
-        f["ray_noise"] = np.repeat(f["noise"], n)
-        f["ray_every"] = np.repeat(f["every"], n)
         f["uids"] = np.array([m.uid for m in self._robots], dtype=np.int64)
         self._fans = f
         self._ranger_slices = rangers
@@ -562,11 +560,11 @@ class World:
         due = ((self.steps - 1) % f["every"]) == 0  # every sensor scans on the first step
         if not due.any():
             return
-        idx = np.nonzero(due)[0]
+        all_due = bool(due.all())
+        idx = np.arange(due.size) if all_due else np.nonzero(due)[0]
         pose = self._prev[f["robot"][idx]]
         c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
         lx, ly = f["lx"][idx], f["ly"][idx]
-        uids = f["uids"]
         fans = {
             "x": pose[:, 0] + c * lx - s * ly,
             "y": pose[:, 1] + s * lx + c * ly,
@@ -574,25 +572,26 @@ class World:
             "dth": f["dth"][idx],
             "n": f["n"][idx],
             "rmax": f["rmax"][idx],
-            "owner": uids[f["robot"][idx]],
+            "owner": f["uids"][f["robot"][idx]],
+            "noise": f["noise"][idx],
+            "rmin": f["rmin"][idx],
         }
-        ranges = cast_fans(self.grid, fans, self._circle_index())
-        ray_due = np.repeat(due, f["n"])
-        noise = f["ray_noise"][ray_due]
-        rmax = f["ray_rmax"][ray_due]
-        hit = ranges < rmax
-        if noise.any():
-            ranges = np.where(hit, ranges + self.rng.standard_normal(ranges.shape) * noise, ranges)
-        ranges = np.clip(ranges, f["ray_rmin"][ray_due], rmax)
-        out = self._scan_out
-        out[ray_due] = ranges
+        # Noise and clipping happen inside the compiled caster (deterministic per seed and step).
+        ranges = cast_fans(self.grid, fans, self._circle_index(), seed=self.seed, step=self.steps).astype(np.float32)
+        if all_due:
+            out = ranges
+        else:
+            out = self._scan_out.copy()  # readings of sensors not due keep their old arrays
+            out[np.repeat(due, f["n"])] = ranges
+        out.flags.writeable = False  # readings are views into this tick's array
+        self._scan_out = out
         t = self.time
-        for m, ri, off, total, k, per in self._ranger_slices:
-            if not ray_due[off]:
+        for m, ri, first_fan, off, total, k, per in self._ranger_slices:
+            if not due[first_fan]:
                 continue
             seg = out[off : off + total]
             vals = seg if per == total else seg.reshape(k, per).min(axis=1)
-            m.readings[ri] = RangerReading(np.array(vals, dtype=np.float32), t, m.rangers[ri])
+            m.readings[ri] = RangerReading(vals, t, m.rangers[ri])
 
     # ------------------------------------------------------------------ blobfinders
     def _update_blobfinders(self) -> None:
