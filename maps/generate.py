@@ -47,9 +47,7 @@ def _octagon(cx: float, cy: float, w: float, h: float, cut: float) -> list[tuple
 
 
 def _circle(cx: float, cy: float, r: float, n: int = 24) -> list[tuple[float, float]]:
-    return [
-        (cx + r * math.cos(2 * math.pi * k / n), cy + r * math.sin(2 * math.pi * k / n)) for k in range(n)
-    ]
+    return [(cx + r * math.cos(2 * math.pi * k / n), cy + r * math.sin(2 * math.pi * k / n)) for k in range(n)]
 
 
 # =====================================================================================================

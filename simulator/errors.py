@@ -26,11 +26,7 @@ class WorldFileError(SimulatorError):
         self.file = str(file)
         self.line = int(line)
         self.message = message
-        where = (
-            f"{self.file}:{self.line}: "
-            if self.file and self.line
-            else (f"{self.file}: " if self.file else "")
-        )
+        where = f"{self.file}:{self.line}: " if self.file and self.line else (f"{self.file}: " if self.file else "")
         super().__init__(f"{where}{message}")
 
 
