@@ -31,8 +31,10 @@ def run_server(cfg: ServerConfig, args: argparse.Namespace, *, shared: dict | No
     """Open the session, start the drivers, serve until a signal, then shut down cleanly."""
     import mrs_bridge.drivers  # noqa: F401  (registers the built-in drivers)
 
+    prog = f"rsal {getattr(args, 'command', None) or 'serve'}"  # "rsal serve: ..." / "rsal sim: ..."
     stop_requested: list[int] = []
     server: DeviceServer | None = None
+    started = False
 
     def on_signal(signum, frame):
         stop_requested.append(signum)
@@ -43,22 +45,23 @@ def run_server(cfg: ServerConfig, args: argparse.Namespace, *, shared: dict | No
     try:
         session = open_session(TransportArgs.from_namespace(args), server=True)
     except ValueError as e:
-        print(f"rsal: {e}", file=sys.stderr)
+        print(f"{prog}: {e}", file=sys.stderr)
         return 1
     server = DeviceServer(cfg, session, require_timeout=args.require_timeout, shared=shared)
     if stop_requested:
         server.stop()
     try:
         server.start()
+        started = True
         n = len(server.devices)
         print(f"[serve] {cfg.source or 'server'}: {len(cfg.drivers)} driver(s), {n} device(s) up", flush=True)
         server.run()
         return 0
     except ConfigError as e:
-        print(f"rsal: {e}", file=sys.stderr)
+        print(f"{prog}: {e}", file=sys.stderr)
         return 1
     except ServerError as e:
-        print(f"rsal: {e}", file=sys.stderr)
+        print(f"{prog}: {e}", file=sys.stderr)
         return 1
     finally:
         server.close()
@@ -68,7 +71,8 @@ def run_server(cfg: ServerConfig, args: argparse.Namespace, *, shared: dict | No
             pass
         for sig, h in old.items():
             signal.signal(sig, h)
-        log.info("server stopped")
+        if started:
+            log.info("server stopped")
 
 
 def _serve(args: argparse.Namespace) -> int:

@@ -116,7 +116,7 @@ def parse_config(
     cfg = ServerConfig(node=node, source=source)
     for i, b in enumerate(blocks, start=1):
         name = b.get("name")
-        where = f"{source}: driver #{i}" + (f" ({name})" if isinstance(name, str) else "")
+        where = f"{source}: driver #{i}" + (f" ({name})" if isinstance(name, str) and name else "")
         if not isinstance(name, str) or not name:
             raise ConfigError(f"{where}: missing 'name' (the driver type, e.g. name = \"sim\")")
         if known_drivers is not None and name not in known_drivers:

@@ -105,6 +105,7 @@ class DeviceServer:
         self._stop = threading.Event()
         self._warned: dict[str, tuple[float, int]] = {}
         self.stats = {"cmd": 0, "rpc": 0, "rejected": 0, "published": 0}
+        self._failed = 0  # drivers that failed (the loop checks whether any still works)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -177,11 +178,16 @@ class DeviceServer:
             now = time.monotonic()
             if until is not None and now >= until:
                 break
-            timeout = self._next_wakeup(now)
-            try:
-                item = self.inbox.get(timeout=timeout) if timeout > 0 else self.inbox.get_nowait()
-            except queue.Empty:
-                item = None
+            item = None
+            if not self.inbox.empty():
+                item = self.inbox.get_nowait()
+            else:
+                timeout = self._next_wakeup(now)
+                if timeout > 0:
+                    try:
+                        item = self.inbox.get(timeout=timeout)
+                    except queue.Empty:
+                        pass
             handled = 0
             while item is not None:
                 self._handle(item)
@@ -193,7 +199,7 @@ class DeviceServer:
                 except queue.Empty:
                     item = None
             self._run_due(time.monotonic())
-            if not any(s.state in ("running", "waiting") for s in self.slots) and self.slots:
+            if self._failed and not any(s.state in ("running", "waiting") for s in self.slots):
                 raise ServerError("no driver is working any more; see the errors above")
 
     def _next_wakeup(self, now: float) -> float:
@@ -210,7 +216,7 @@ class DeviceServer:
             if slot.state == "waiting" and now >= slot.deadline:
                 missing = ", ".join(map(str, sorted(slot.missing)))
                 log.error(
-                    "%s: required device(s) %s did not appear within %.0f s; start the server that "
+                    "%s: required device(s) %s did not appear within %g s; start the server that "
                     "provides them, or check the 'requires' names",
                     slot.name,
                     missing,
@@ -262,6 +268,7 @@ class DeviceServer:
             except Exception as e:
                 log.warning("%s: shutdown after failure: %s", slot.name, e)
         slot.state = "failed"
+        self._failed += 1
         for a in slot.driver.cfg.provides:
             dev = self.devices.pop(a.without_key(), None)
             if dev is not None:
@@ -334,6 +341,8 @@ class DeviceServer:
             if slot.state == "waiting":
                 if alive:
                     slot.missing.discard(addr)
+                else:  # seen, then lost before the others arrived: still missing
+                    slot.missing.add(addr)
                 if not slot.missing:
                     self._setup(slot)
             elif slot.state == "running" and not alive:

@@ -162,8 +162,12 @@ class Subsumption:
             if min(side_d, diag) > 2.5 * p.wall_dist:
                 # no wall: curve towards the side to find one
                 return (p.cruise_speed * 0.8, sign * p.turn_rate * 0.4)
-            err = min(side_d, diag * math.cos(math.radians(45))) - p.wall_dist
-            w = sign * float(np.clip(1.5 * err, -p.turn_rate, p.turn_rate))
+            # The nearest point of a parallel wall in the diagonal sectors (25..65 degrees) lies on
+            # their outer edge, at wall distance / sin(65 deg): scale it back to a wall distance.
+            diag_d = diag * math.sin(math.radians(65))
+            err = min(side_d, diag_d) - p.wall_dist
+            # diag_d < side_d: heading into the wall; diag_d > side_d: heading away (or a corner).
+            w = sign * float(np.clip(1.5 * err + 4.0 * (diag_d - side_d), -p.turn_rate, p.turn_rate))
             v = p.cruise_speed * (0.6 if abs(err) > 0.3 else 1.0)
             return (v, w)
 

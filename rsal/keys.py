@@ -81,7 +81,7 @@ class DeviceAddr:
     def __post_init__(self) -> None:
         check_name("node", self.node)
         check_name("interface", self.interface)
-        if not isinstance(self.index, int) or self.index < 0:
+        if isinstance(self.index, bool) or not isinstance(self.index, int) or self.index < 0:
             raise ValueError(f"device index {self.index!r} must be a non-negative integer")
 
     @property
@@ -124,9 +124,12 @@ def parse_device(text: str, default_node: str | None = None) -> DeviceAddr:
         index = int(idx)
     except ValueError:
         raise ValueError(f"device {text!r}: index {idx!r} is not an integer") from None
-    if key:
-        check_name("device key", key)
-    return DeviceAddr(node, iface, index, key)
+    try:
+        if key:
+            check_name("device key", key)
+        return DeviceAddr(node, iface, index, key)
+    except ValueError as e:
+        raise ValueError(f"device {text!r}: {e}") from None
 
 
 def device_key(addr: DeviceAddr) -> str:

@@ -93,7 +93,7 @@ def decode_map(data: bytes | bytearray | memoryview | None) -> dict:
     if data is None or len(data) == 0:
         return {}
     try:
-        obj = msgpack.unpackb(bytes(data), raw=False, strict_map_key=False)
+        obj = msgpack.unpackb(data if type(data) is bytes else bytes(data), raw=False, strict_map_key=False)
     except Exception as e:  # msgpack raises several unrelated exception types
         raise MessageError(f"payload is not msgpack ({type(e).__name__})") from None
     if not isinstance(obj, dict):
@@ -135,6 +135,9 @@ def _need(m: dict, name: str, required: bool):
 
 
 def get_float(m: dict, name: str, default: float | None = None, *, lo: float = -math.inf, hi: float = math.inf):
+    v = m.get(name)
+    if type(v) is float and lo <= v <= hi and v - v == 0.0:  # fast path: a finite float in range
+        return v
     v = _need(m, name, default is None)
     if v is None:
         return default
@@ -193,11 +196,17 @@ def get_vec(m: dict, name: str, n: int, default: tuple | None = None) -> tuple[f
     return tuple(out)
 
 
+_F32 = np.dtype("<f4")
+
+
 def f32_bytes(a) -> bytes:
     return np.ascontiguousarray(a, dtype="<f4").tobytes()
 
 
 def f32_array(m: dict, name: str) -> np.ndarray:
+    v = m.get(name)
+    if type(v) is bytes and not len(v) & 3:  # fast path
+        return np.frombuffer(v, dtype="<f4")
     v = _need(m, name, True)
     if not isinstance(v, (bytes, bytearray)):
         raise MessageError(f"field {name!r} must be packed float32 bytes, not {type(v).__name__}")
@@ -209,17 +218,25 @@ def f32_array(m: dict, name: str) -> np.ndarray:
 class _Msg:
     """Common ``to_dict`` for message dataclasses (tuples become lists, arrays float32 bytes)."""
 
+    _field_names: ClassVar[tuple[str, ...]] = ()
+
     def to_dict(self) -> dict:
+        names = type(self).__dict__.get("_field_names")
+        if not names:  # computed once per class: dataclasses.fields() is slow on a hot path
+            names = tuple(f.name for f in fields(self))  # type: ignore[arg-type]
+            type(self)._field_names = names
         d = {}
-        for f in fields(self):  # type: ignore[arg-type]
-            v = getattr(self, f.name)
-            if isinstance(v, np.ndarray):
+        for name in names:
+            v = getattr(self, name)
+            if type(v) is float or type(v) is int or type(v) is str:
+                pass
+            elif isinstance(v, np.ndarray):
                 v = f32_bytes(v)
             elif isinstance(v, tuple):
                 v = list(v)
             elif isinstance(v, list) and v and hasattr(v[0], "to_dict"):
                 v = [x.to_dict() for x in v]
-            d[f.name] = v
+            d[name] = v
         return d
 
 
@@ -257,8 +274,9 @@ class Position2dData(_Msg):
 @dataclass(frozen=True, eq=False)
 class RangerData(_Msg):
     """ranger, laser and sonar ``data``: ``ranges`` (float32 bytes on the wire, metres). For a
-    laser, beam ``i`` points at ``angle_min + i * angle_step`` (rad, robot... sensor frame); a
-    sonar's transducer poses are in ``rpc/describe`` geometry."""
+    laser, beam ``i`` points at ``angle_min + i * angle_step`` (rad, in the ranger's frame, whose
+    pose on the robot is ``rpc/describe`` geometry ``pose``); a sonar's transducer poses are in
+    ``rpc/describe`` geometry ``sensors``."""
 
     t: float
     ranges: np.ndarray
@@ -277,6 +295,17 @@ class RangerData(_Msg):
             get_float(m, "range_min", 0.0),
             get_float(m, "range_max", 0.0),
         )
+
+    def to_dict(self) -> dict:  # explicit: the hottest message on the fabric
+        r = self.ranges
+        return {
+            "t": self.t,
+            "ranges": r.tobytes() if r.dtype == _F32 and r.flags.c_contiguous else f32_bytes(r),
+            "angle_min": self.angle_min,
+            "angle_step": self.angle_step,
+            "range_min": self.range_min,
+            "range_max": self.range_max,
+        }
 
 
 # ---------------------------------------------------------------------------- blobfinder
@@ -364,7 +393,7 @@ class GripperData(_Msg):
         return cls(
             get_float(m, "t"),
             get_str(m, "paddles", choices=("open", "closed", "opening", "closing", "error")),
-            get_str(m, "lift", "down"),
+            get_str(m, "lift", "down", choices=("down", "up", "raising", "lowering", "error")),
             get_int(m, "beams", 0, lo=0, hi=3),
             get_int(m, "stored", 0, lo=0),
             get_str(m, "carrying", optional=True),

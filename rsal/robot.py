@@ -50,6 +50,11 @@ class Robot:
         if not self.lasers and not self.sonars:
             raise RobotError(f"robot {name or self.position2d.node!r} needs a ranger (laser or sonar)")
         self.laser_enabled = bool(laser)
+        if not self.laser_enabled and not self.sonars:
+            raise RobotError(
+                f"robot {name or self.position2d.node!r} has its laser disabled and no sonar; "
+                "enable the laser or give it a sonar"
+            )
         self.simulation: Simulation | None = next((d for d in devs if isinstance(d, Simulation)), None)
         self.blobfinder: Blobfinder | None = next((d for d in devs if isinstance(d, Blobfinder)), None)
         self.gripper: Gripper | None = next((d for d in devs if isinstance(d, Gripper)), None)

@@ -310,6 +310,8 @@ class SimDriver(Driver):
 
     def on_rpc(self, addr, op, args):
         w = self.world
+        if self.model not in w.model_names:  # removed with simulation rpc/remove_model
+            raise RpcError(ErrorCode.UNAVAILABLE, f"model {self.model!r} was removed from the simulation")
         if addr.interface == "position2d":
             if op == "set_odom":
                 x, y, a = get_vec(args, "pose", 3)

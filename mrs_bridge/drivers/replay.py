@@ -1,0 +1,179 @@
+"""``replay`` driver: a synthetic range sensor for tests and benchmarks (dora-rs ``MockNode`` replay).
+
+Provides ``ranger`` and/or ``laser`` devices that publish :class:`~rsal.msgs.RangerData` scans at
+``rate`` Hz without a simulator or hardware, the way Player test set-ups replayed a logged laser.
+``rate = inf`` publishes once per iteration of the server's scheduler loop (as fast as it goes).
+
+Parameters (Player-style names, degrees where a user types an angle)::
+
+    [[driver]]
+    name = "replay"
+    provides = ["r0:ranger:0", "r0:laser:0"]
+    rate = 10            # Hz; inf: every scheduler iteration
+    samples = 682        # beams per scan (default 682, a Hokuyo URG-04LX)
+    fov = 240            # degrees, centred on the sensor's x axis (default 240)
+    range_min = 0.02     # m (default 0.02)
+    range_max = 5.6      # m (default 5.6)
+    pattern = "constant" # "constant": every beam reads `value`;
+                         # "sweep": a sine wave over the beams that turns once per `period` s
+    value = 1.0          # m, the constant range (default 1.0; only used by "constant")
+    period = 4.0         # s, one turn of the sweep (default 4)
+    count = 1000         # optional: stop after this many scans (the devices stay alive)
+    stamp = "monotonic"  # optional: t = time.monotonic() at publish ("elapsed", the default:
+                         # seconds since the driver started)
+
+``stamp = "monotonic"`` lets a process on the same machine measure latency as
+``time.monotonic() - scan.t`` (``benchmarks/bench_fabric.py``). Every provided device carries the
+same scan. ``rpc/get`` returns the latest scan; ``rpc/describe`` gives the geometry in the shape of
+the ``sim`` driver's laser (``kind``, ``pose``, ``sensors[0]`` with ``fov`` in radians).
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from rsal.msgs import ErrorCode, RangerData, RpcError
+
+from ..config import ConfigError
+from ..driver import Driver, register
+
+__all__ = ["ReplayDriver"]
+
+PATTERNS = ("constant", "sweep")
+STAMPS = ("elapsed", "monotonic")
+PARAMS = ("samples", "fov", "range_min", "range_max", "pattern", "value", "period", "count", "stamp")
+
+
+@register("replay")
+class ReplayDriver(Driver):
+    interfaces = ("ranger", "laser")
+    default_rate = 10.0
+    data_types = {"ranger": "RangerData", "laser": "RangerData"}
+
+    def __init__(self, cfg, server):
+        super().__init__(cfg, server)
+        for k in cfg.params:
+            if k not in PARAMS:
+                close = difflib.get_close_matches(k, PARAMS, n=1)
+                hint = f"did you mean {close[0]!r}?" if close else f"known: {', '.join(PARAMS)}"
+                raise ConfigError(f"{cfg.where}: unknown parameter {k!r}; {hint}")
+        self.samples = self._int("samples", 682, lo=1)
+        fov_deg = self._num("fov", 240.0)
+        if not 0.0 < fov_deg <= 360.0:
+            raise ConfigError(f"{cfg.where}: fov = {fov_deg:g} must be in (0, 360] degrees")
+        self.fov = math.radians(fov_deg)
+        self.range_min = self._num("range_min", 0.02)
+        self.range_max = self._num("range_max", 5.6)
+        if not 0.0 <= self.range_min < self.range_max:
+            raise ConfigError(
+                f"{cfg.where}: range_min = {self.range_min:g} and range_max = {self.range_max:g} m must satisfy "
+                "0 <= range_min < range_max"
+            )
+        self.pattern = self._choice("pattern", "constant", PATTERNS)
+        self.value = self._num("value", 1.0)
+        if self.pattern == "constant" and not self.range_min <= self.value <= self.range_max:
+            raise ConfigError(
+                f"{cfg.where}: value = {self.value:g} m must lie in [range_min, range_max] = "
+                f"[{self.range_min:g}, {self.range_max:g}]"
+            )
+        self.period = self._num("period", 4.0)
+        if self.period <= 0:
+            raise ConfigError(f"{cfg.where}: period = {self.period:g} s must be positive")
+        self.count = self._int("count", None, lo=1)
+        self.stamp = self._choice("stamp", "elapsed", STAMPS)
+        self.angle_step = self.fov / (self.samples - 1) if self.samples > 1 else 0.0
+        self.angle_min = -self.fov / 2 if self.samples > 1 else 0.0
+        self._constant = np.full(self.samples, self.value, dtype="<f4")
+        self._constant.setflags(write=False)
+        self._beam_phase = np.linspace(0.0, 2 * math.pi, self.samples, endpoint=False)
+        self.configured_rate = self.rate
+        self.sent = 0
+        self.last: RangerData | None = None
+        self._t0 = time.monotonic()
+
+    # ------------------------------------------------------------------ parameter readers
+    def _num(self, key: str, default: float) -> float:
+        v = self.cfg.param(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ConfigError(f"{self.cfg.where}: {key} = {v!r} must be a finite number")
+        return float(v)
+
+    def _int(self, key: str, default: int | None, *, lo: int) -> int | None:
+        v = self.cfg.param(key, default)
+        if v is None:
+            return None
+        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+            raise ConfigError(f"{self.cfg.where}: {key} = {v!r} must be an integer >= {lo}")
+        return v
+
+    def _choice(self, key: str, default: str, choices: tuple[str, ...]) -> str:
+        v = self.cfg.param(key, default)
+        if v not in choices:
+            close = difflib.get_close_matches(str(v), choices, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise ConfigError(f"{self.cfg.where}: {key} = {v!r} must be one of {', '.join(choices)}{hint}")
+        return v
+
+    # ------------------------------------------------------------------ the driver contract
+    def setup(self) -> None:
+        self._t0 = time.monotonic()
+        self.sent = 0
+
+    def ranges(self, elapsed: float) -> np.ndarray:
+        """The scan ``elapsed`` seconds after start (float32, metres)."""
+        if self.pattern == "constant":
+            return self._constant
+        lo, hi = self.range_min, self.range_max
+        wave = np.sin(self._beam_phase + 2 * math.pi * elapsed / self.period)
+        return (lo + (hi - lo) * 0.5 * (1.0 + wave)).astype("<f4")
+
+    def update(self, now: float) -> None:
+        if self.count is not None and self.sent >= self.count:
+            return
+        elapsed = now - self._t0
+        ranges = self.ranges(elapsed)
+        t = time.monotonic() if self.stamp == "monotonic" else elapsed
+        scan = RangerData(t, ranges, self.angle_min, self.angle_step, self.range_min, self.range_max)
+        for a in self.cfg.provides:
+            self.publish(a, scan)
+        self.last = scan
+        self.sent += 1
+        if self.count is not None and self.sent >= self.count:
+            self.rate = 0.0  # the scheduler stops calling update(); the devices stay alive
+            self.log.info("%s: replay finished after %d scan(s)", self.cfg.where, self.sent)
+
+    def publish_rate(self, addr) -> float:
+        # describe's rate must be finite (Describe.from_dict rejects inf): 0 means "not periodic".
+        return self.configured_rate if math.isfinite(self.configured_rate) else 0.0
+
+    def ops(self, addr) -> list[str]:
+        return ["get"]
+
+    def on_rpc(self, addr, op, args) -> dict:
+        if op == "get":
+            if self.last is None:
+                raise RpcError(ErrorCode.UNAVAILABLE, "no scan yet")
+            return self.last.to_dict()
+        return super().on_rpc(addr, op, args)
+
+    def geometry(self, addr) -> dict[str, Any]:
+        return {
+            "kind": "laser",
+            "pose": [0.0, 0.0, 0.0],
+            "sensors": [
+                {
+                    "pose": [0.0, 0.0, 0.0],
+                    "fov": self.fov,
+                    "samples": self.samples,
+                    "range_min": self.range_min,
+                    "range_max": self.range_max,
+                }
+            ],
+            "pattern": self.pattern,
+            "count": self.count or 0,
+        }

@@ -1,0 +1,398 @@
+"""The device server (mrs_bridge/server.py) in this process on loopback Zenoh, with small drivers
+defined here: tokens, describe, rpc errors, malformed commands, failure isolation, ``requires``."""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+import msgpack
+import numpy as np
+import pytest
+from bridge_helpers import LiveServer
+from conftest import free_port, wait_until
+
+from mrs_bridge.driver import Driver, OutOfRange
+from mrs_bridge.drivers.rangertolaser import RangerToLaser
+from mrs_bridge.drivers.replay import ReplayDriver
+from mrs_bridge.server import ServerError
+from rsal import keys
+from rsal.keys import DeviceAddr, parse_device
+from rsal.msgs import ErrorCode, RangerData, RpcError, VelocityCmd, encode, get_float, parse_reply
+
+
+class Counter(Driver):
+    """Publishes ``{"n": k}`` on every provided device; takes VelocityCmd; ``rpc/scale`` doubles ``k``."""
+
+    driver_name = "counter"
+    default_rate = 50.0
+    data_types = {"dio": "Count"}
+    cmd_types = {"dio": "VelocityCmd"}
+
+    def __init__(self, cfg, server):
+        super().__init__(cfg, server)
+        self.n = 0
+        self.cmd: VelocityCmd | None = None
+        self.shut = False
+
+    def update(self, now):
+        self.n += 1
+        for a in self.cfg.provides:
+            self.publish(a, {"n": self.n})
+
+    def on_cmd(self, addr, msg):
+        self.cmd = VelocityCmd.from_dict(msg)
+
+    def ops(self, addr):
+        return ["scale", "crash"]
+
+    def on_rpc(self, addr, op, args):
+        if op == "crash":
+            raise ZeroDivisionError("division by zero")
+        k = get_float(args, "k")
+        if k > 10:
+            raise OutOfRange(f"k = {k:g} is over 10")
+        return {"result": 2 * k}
+
+    def geometry(self, addr):
+        return {"pose": [0.1, 0.0, 0.0], "label": self.cfg.param("label", "")}
+
+    def shutdown(self):
+        self.shut = True
+
+
+class Flaky(Counter):
+    """A Counter whose update() raises once the test sets ``server.shared["boom"]``; takes no commands."""
+
+    driver_name = "flaky"
+    cmd_types = {}
+
+    def update(self, now):
+        if self.server.shared.get("boom"):
+            raise RuntimeError("sensor unplugged")
+        super().update(now)
+
+    def on_cmd(self, addr, msg):
+        return Driver.on_cmd(self, addr, msg)
+
+
+DRIVERS = {"counter": Counter, "flaky": Flaky, "replay": ReplayDriver, "rangertolaser": RangerToLaser}
+
+
+@pytest.fixture
+def servers():
+    made: list[LiveServer] = []
+
+    def make(text: str, *, port: int | None = None, **kw) -> LiveServer:
+        s = LiveServer(text, port=port or free_port(), drivers=DRIVERS, **kw)
+        made.append(s)
+        return s
+
+    yield make
+    for s in reversed(made):
+        s.close()
+
+
+@pytest.fixture
+def caplog_bridge(caplog):
+    caplog.set_level(logging.INFO, logger="mrs_bridge")
+    return caplog
+
+
+TWO_COUNTERS = """
+[server]
+node = "r0"
+
+[[driver]]
+name = "counter"
+provides = ["dio:0", "dio:1"]
+label = "front"
+
+[[driver]]
+name = "counter"
+node = "r1"
+provides = ["dio:0"]
+rate = 20
+"""
+
+
+def raw_rpc(session, addr: DeviceAddr, op: str, payload: bytes) -> dict:
+    key = keys.rpc_key(addr, op)
+    for r in session.get(key, payload=payload, timeout=5.0):
+        if r.ok is not None:
+            return parse_reply(r.ok.payload.to_bytes(), key=key)
+        return parse_reply(r.err.payload.to_bytes(), is_error=True, key=key)
+    raise RpcError(ErrorCode.TIMEOUT, "no reply", key)
+
+
+# ---------------------------------------------------------------------------- tokens and describe
+def test_a_token_per_device_and_withdrawn_on_close(servers, port, fabric_factory):
+    srv = servers(TWO_COUNTERS, port=port).start()
+    fab = fabric_factory(port)
+    node = fab.node("**")
+    expected = {parse_device(t) for t in ("r0:dio:0", "r0:dio:1", "r1:dio:0")}
+    node.wait_for("**", count=3, timeout=10)
+    assert set(node.devices()) == expected
+    assert set(srv.server.devices) == expected
+    srv.close()
+    for a in expected:
+        node.wait_gone(a, timeout=5)
+
+
+def test_describe_says_what_the_device_is(servers, port, fabric_factory):
+    servers(TWO_COUNTERS, port=port).start()
+    fab = fabric_factory(port)
+    fab.node("**").wait_for("**", count=3, timeout=10)
+    d = fab.device("r0:dio:1").describe()
+    assert (d.node, d.interface, d.index, d.driver) == ("r0", "dio", 1, "counter")
+    assert d.rate == 50.0
+    assert d.geometry == {"pose": [0.1, 0.0, 0.0], "label": "front"}
+    assert d.ops == ["describe", "scale", "crash"]
+    assert (d.cmd, d.data, d.protocol) == ("VelocityCmd", "Count", 1)
+    assert fab.device("r1:dio:0").describe().rate == 20.0  # the block's own rate
+
+
+def test_running_drivers_keep_publishing(servers, port, fabric_factory):
+    servers(TWO_COUNTERS, port=port).start()
+    fab = fabric_factory(port)
+    fab.node("**").wait_for("**", count=3, timeout=10)
+    dev = fab.device("r0:dio:0")
+    first = dev.wait_for_data(5)["n"]
+    later = dev.wait_for_data(5, newer_than=dev.count + 4)["n"]
+    assert later >= first + 5
+
+
+# ---------------------------------------------------------------------------- rpc
+def test_rpc_replies_and_typed_errors(servers, port, fabric_factory):
+    srv = servers(TWO_COUNTERS, port=port).start()
+    fab = fabric_factory(port)
+    fab.node("**").wait_for("**", count=3, timeout=10)
+    a = parse_device("r0:dio:0")
+    assert fab.rpc(a, "scale", {"k": 2}) == {"ok": True, "result": 4.0}
+
+    def code_of(op, args=None, raw: bytes | None = None) -> RpcError:
+        with pytest.raises(RpcError) as ei:
+            if raw is not None:
+                raw_rpc(fab.session, a, op, raw)
+            else:
+                fab.rpc(a, op, args)
+        return ei.value
+
+    e = code_of("fly")
+    assert e.code == ErrorCode.UNKNOWN_OP
+    assert e.message == "r0:dio:0 has no operation 'fly'; it has: describe, scale, crash"
+    e = code_of("scale", {"k": "two"})
+    assert e.code == ErrorCode.BAD_REQUEST and "'k' must be a number" in e.message
+    e = code_of("scale", {"k": math.nan})
+    assert e.code == ErrorCode.BAD_REQUEST and "'k' must be finite" in e.message
+    e = code_of("scale", {})
+    assert e.code == ErrorCode.BAD_REQUEST and "'k' is missing" in e.message
+    e = code_of("scale", raw=b"\xc1not msgpack")
+    assert e.code == ErrorCode.BAD_REQUEST and "not msgpack" in e.message
+    e = code_of("scale", raw=msgpack.packb([1, 2]))
+    assert e.code == ErrorCode.BAD_REQUEST and "must be a msgpack map" in e.message
+    e = code_of("scale", {"k": 50})
+    assert e.code == ErrorCode.OUT_OF_RANGE and e.message == "k = 50 is over 10"
+    e = code_of("crash")
+    assert e.code == ErrorCode.INTERNAL and e.message == "ZeroDivisionError: division by zero"
+    # none of that hurt the driver
+    assert srv.slot_state("counter") == "running"
+    assert fab.rpc(a, "scale", {"k": 1.5})["result"] == 3.0
+    assert srv.server.stats["rejected"] == 7  # every error reply but the internal one
+
+
+# ---------------------------------------------------------------------------- cmd
+JUNK_CMDS = [
+    b"\xc1\xff\x00garbage",  # not msgpack
+    msgpack.packb([0.1, 0.2]),  # not a map
+    msgpack.packb("v=0.1"),
+    b"",  # empty: no 'v'
+    msgpack.packb({"speed": 0.1}),  # wrong fields
+    msgpack.packb({"v": "fast", "w": 0.0}),  # wrong type
+    msgpack.packb({"v": True, "w": 0.0}),
+    msgpack.packb({"v": math.nan, "w": 0.0}),  # NaN
+    msgpack.packb({"v": 0.1, "w": math.inf}),  # inf
+]
+
+
+def test_malformed_commands_change_nothing_and_the_server_keeps_serving(servers, port, fabric_factory, caplog_bridge):
+    srv = servers(TWO_COUNTERS, port=port).start()
+    fab = fabric_factory(port)
+    node = fab.node("**")
+    node.wait_for("**", count=3, timeout=10)
+    a = parse_device("r0:dio:0")
+    drv = srv.driver("counter")
+    for junk in JUNK_CMDS:
+        fab.session.put(keys.cmd_key(a), junk)
+    wait_until(lambda: srv.server.stats["rejected"] == len(JUNK_CMDS), 5, "every malformed command to be rejected")
+    assert drv.cmd is None
+    assert srv.slot_state("counter") == "running"
+    assert node.is_alive(a)
+    # one warning for the burst, not one per command
+    warnings = [r for r in caplog_bridge.records if "rejected cmd on rsal/r0/dio/0/cmd" in r.getMessage()]
+    assert len(warnings) == 1
+    # still serving: data flows, rpc answers, a valid command is taken
+    dev = fab.device(a)
+    dev.wait_for_data(5, newer_than=dev.count)
+    assert fab.rpc(a, "scale", {"k": 1})["result"] == 2.0
+    fab.send(a, VelocityCmd(0.2, -0.1))
+    wait_until(lambda: drv.cmd is not None, 5, "the valid command to reach the driver")
+    assert drv.cmd == VelocityCmd(0.2, -0.1)
+
+
+def test_a_command_to_a_device_that_takes_none_is_rejected(servers, port, fabric_factory):
+    srv = servers('[[driver]]\nname = "flaky"\nprovides = ["r0:dio:0"]\n', port=port).start()
+    fab = fabric_factory(port)
+    fab.node("**").wait_for("r0:dio:0", timeout=10)
+    fab.send(parse_device("r0:dio:0"), VelocityCmd(0.1, 0.0))
+    wait_until(lambda: srv.server.stats["rejected"] == 1, 5, "the command to be rejected")
+    assert srv.slot_state("flaky") == "running"
+
+
+# ---------------------------------------------------------------------------- failure isolation
+FLAKY_AND_COUNTER = """
+[[driver]]
+name = "flaky"
+provides = ["r0:dio:0"]
+
+[[driver]]
+name = "counter"
+provides = ["r1:dio:0"]
+"""
+
+
+def test_a_driver_that_raises_in_update_is_withdrawn_and_the_others_go_on(servers, port, fabric_factory, caplog_bridge):
+    srv = servers(FLAKY_AND_COUNTER, port=port).start()
+    fab = fabric_factory(port)
+    node = fab.node("**")
+    node.wait_for("**", count=2, timeout=10)
+    flaky, healthy = parse_device("r0:dio:0"), parse_device("r1:dio:0")
+    srv.server.shared["boom"] = True
+    node.wait_gone(flaky, timeout=5)
+    assert srv.slot_state("flaky") == "failed"
+    assert srv.driver("flaky").shut  # its actuators were stopped
+    assert flaky not in srv.server.devices
+    # the other driver keeps publishing and answering
+    assert node.is_alive(healthy)
+    dev = fab.device(healthy)
+    dev.wait_for_data(5, newer_than=dev.count + 3)
+    assert fab.rpc(healthy, "scale", {"k": 3})["result"] == 6.0
+    assert srv.error is None and srv.thread.is_alive()
+    msgs = [r.getMessage() for r in caplog_bridge.records if r.levelno == logging.ERROR]
+    assert msgs == [
+        "test.toml: driver #1 (flaky): driver failed in update: RuntimeError: sensor unplugged; "
+        "its devices are withdrawn"
+    ]
+
+
+# ---------------------------------------------------------------------------- requires
+def test_a_required_device_that_never_appears_fails_the_driver(servers, caplog_bridge):
+    text = """
+    [[driver]]
+    name = "rangertolaser"
+    requires = ["r9:ranger:0"]
+    provides = ["r9:laser:0"]
+    """
+    srv = servers(text, require_timeout=0.3)
+    t0 = time.monotonic()
+    srv.server.start()
+    assert srv.slot_state("rangertolaser") == "waiting"
+    with pytest.raises(ServerError, match="no driver is working any more"):
+        srv.server.run(until=t0 + 10)
+    assert 0.3 <= time.monotonic() - t0 < 5
+    assert srv.slot_state("rangertolaser") == "failed"
+    assert srv.server.devices == {}
+    errors = [r.getMessage() for r in caplog_bridge.records if r.levelno == logging.ERROR]
+    assert errors == [
+        "test.toml: driver #1 (rangertolaser): required device(s) r9:ranger:0 did not appear within 0.3 s; "
+        "start the server that provides them, or check the 'requires' names"
+    ]
+
+
+def test_requires_satisfied_by_a_second_server_starts_the_driver(servers, fabric_factory):
+    port_a, port_b = free_port(), free_port()
+    ranger = servers(
+        """
+        [[driver]]
+        name = "replay"
+        provides = ["r0:ranger:0"]
+        rate = 20
+        samples = 90
+        fov = 180
+        value = 2.5
+        """,
+        port=port_a,
+    )
+    laser = servers(
+        """
+        [[driver]]
+        name = "rangertolaser"
+        requires = ["r0:ranger:0"]
+        provides = ["r0:laser:0"]
+        """,
+        port=port_b,
+        connect=(port_a,),
+    ).start()
+    assert laser.slot_state("rangertolaser") == "waiting"  # nothing provides r0:ranger:0 yet
+    assert laser.server.devices == {}
+    ranger.start()
+    fab = fabric_factory(port_a)
+    node = fab.node("**")
+    node.wait_for("r0:laser:0", timeout=10)
+    assert laser.slot_state("rangertolaser") == "running"
+    scan = fab.device("r0:laser:0").wait_for_data(5)
+    assert scan.ranges.shape == (90,)
+    assert scan.ranges.tolist() == [2.5] * 90
+    assert scan.angle_min == pytest.approx(-math.pi / 2)
+    assert scan.angle_step == pytest.approx(math.pi / 89)
+    d = fab.device("r0:laser:0").describe()
+    assert d.driver == "rangertolaser" and d.geometry["source"] == "r0:ranger:0"
+    assert laser.driver("rangertolaser").count >= 1
+
+
+def test_a_required_device_that_comes_and_goes_is_waited_for_again(servers):
+    """A device seen and then lost before the others arrive is still missing."""
+    text = """
+    [[driver]]
+    name = "counter"
+    requires = ["r9:ranger:0", "r9:ranger:1"]
+    provides = ["r9:dio:0"]
+    """
+    srv = servers(text)
+    srv.server.start()
+    slot = srv.server.slots[0]
+    a, b = parse_device("r9:ranger:0"), parse_device("r9:ranger:1")
+    for addr, alive in ((a, True), (a, False), (b, True)):
+        srv.server._handle(("live", slot, addr, alive))
+    assert slot.state == "waiting" and slot.missing == {a}
+    srv.server._handle(("live", slot, a, True))
+    assert slot.state == "running"
+    assert set(srv.server.devices) == {parse_device("r9:dio:0")}
+
+
+def test_data_from_a_required_device_reaches_the_driver_and_bad_data_is_dropped(servers, fabric_factory):
+    port = free_port()
+    srv = servers(
+        """
+        [[driver]]
+        name = "rangertolaser"
+        requires = ["r5:ranger:0"]
+        provides = ["r5:laser:0"]
+        """,
+        port=port,
+    ).start()
+    fab = fabric_factory(port)
+    # this process plays the ranger: a token and hand-made scans
+    with fab.session.liveliness().declare_token(keys.device_key(parse_device("r5:ranger:0"))):
+        fab.node("**").wait_for("r5:laser:0", timeout=10)
+        drv = srv.driver("rangertolaser")
+        data_key = keys.data_key(parse_device("r5:ranger:0"))
+        good = RangerData(1.0, np.array([1.0, 2.0]), -0.1, 0.1, 0.02, 4.0)
+        laser = fab.device("r5:laser:0")
+        for payload in (b"\xc1junk", encode({"t": 1.0, "ranges": [1, 2]}), encode(good)):
+            fab.session.put(data_key, payload)
+        scan = laser.wait_for_data(5)
+        assert scan.ranges.tolist() == [1.0, 2.0] and scan.t == 1.0
+        assert drv.count == 1
+        assert srv.slot_state("rangertolaser") == "running"
