@@ -84,13 +84,26 @@ def _serve(args: argparse.Namespace) -> int:
     return run_server(cfg, args)
 
 
-def sim_config(world, *, map_device: bool = True, source: str = "") -> ServerConfig:
-    """The server configuration of ``rsal sim`` for a loaded :class:`simulator.world.World`."""
-    from rsal.keys import DeviceAddr
+def sim_config(
+    world, *, map_device: bool = True, source: str = "", nav: str | None = None, nav_robots: list[str] | None = None
+) -> ServerConfig:
+    """The server configuration of ``rsal sim`` for a loaded :class:`simulator.world.World`.
 
-    def block(name, node, provides, **params):
+    With ``nav`` (``"vfh"``, ``"nd"`` or ``"snd"``) every robot with a laser (or those named in
+    ``nav_robots``) also gets the navigation stack of thesis appendix A.3: ``amcl`` (localize:0,
+    position2d:2, started at the robot's true pose), the local planner (position2d:1) and
+    ``wavefront`` (planner:0), all on the simulated floorplan ``sim:map:0``.
+    """
+    from rsal.keys import DeviceAddr, parse_device
+
+    def block(name, node, provides, requires=(), **params):
         return DriverConfig(
-            name, [DeviceAddr(node, i, n) for i, n in provides], [], params, None, f"{source or 'sim'}: {name} {node}"
+            name,
+            [DeviceAddr(node, i, n) for i, n in provides],
+            [parse_device(r) for r in requires],
+            params,
+            None,
+            f"{source or 'sim'}: {name} {node}",
         )
 
     drivers = [block("simulation", "sim", [("simulation", 0)])]
@@ -108,6 +121,50 @@ def sim_config(world, *, map_device: bool = True, source: str = "") -> ServerCon
         prov += [("gripper", i) for i in range(len(spec.grippers))]
         prov.append(("power", 0))
         drivers.append(block("sim", name, prov, model=name))
+    if nav:
+        if world.grid is None or not map_device:
+            raise ConfigError(f"{source}: --nav needs the world's floorplan served as sim:map:0")
+        wanted = set(nav_robots) if nav_robots else None
+        if wanted:
+            unknown = sorted(wanted - set(world.robot_names))
+            if unknown:
+                raise ConfigError(f"{source}: --nav-robots names unknown robot(s) {', '.join(unknown)}")
+        for name in world.robot_names:
+            spec = world.model_spec(name)
+            has_laser = any(r.kind != "sonar" for r in spec.rangers)
+            if wanted is not None and name not in wanted:
+                continue
+            if not spec.rangers:
+                continue
+            if not has_laser and wanted is None:
+                continue
+            rng = f"{name}:laser:0" if has_laser else f"{name}:sonar:0"
+            x, y, a = world.get_pose(name)
+            drivers.append(
+                block(
+                    "amcl",
+                    name,
+                    [("localize", 0), ("position2d", 2)],
+                    [f"odometry::{name}:position2d:0", rng, "sim:map:0"],
+                    init_pose=[x, y, math.degrees(a)],
+                    init_pose_var=[0.05, 0.05, math.degrees(math.radians(5) ** 2)],
+                    pf_min_samples=200,
+                    pf_max_samples=2000,
+                    laser_max_beams=30,
+                )
+            )
+            drivers.append(block(nav, name, [("position2d", 1)], [f"{name}:position2d:0", rng]))
+            drivers.append(
+                block(
+                    "wavefront",
+                    name,
+                    [("planner", 0)],
+                    [f"output::{name}:position2d:1", f"input::{name}:position2d:2", "sim:map:0"],
+                    safety_dist=0.15,
+                    distance_epsilon=0.4,
+                    angle_epsilon=10.0,
+                )
+            )
     return ServerConfig(node="sim", drivers=drivers, source=source)
 
 
@@ -128,7 +185,13 @@ def _sim(args: argparse.Namespace) -> int:
     except SimulatorError as e:
         print(f"rsal sim: {e}", file=sys.stderr)
         return 1
-    cfg = sim_config(world, map_device=not args.no_map, source=str(args.world))
+    try:
+        cfg = sim_config(
+            world, map_device=not args.no_map, source=str(args.world), nav=args.nav, nav_robots=args.nav_robots
+        )
+    except ConfigError as e:
+        print(f"rsal sim: {e}", file=sys.stderr)
+        return 1
     sp = "as fast as possible" if math.isinf(spec.speedup) else f"{spec.speedup:g}x real time"
     print(f"[sim] {args.world}: {len(world.robot_names)} robots ({', '.join(world.robot_names)}), {sp}", flush=True)
     t0 = time.monotonic()
@@ -171,6 +234,17 @@ def register_sim(sub) -> None:
     pace.add_argument("--fast", action="store_true", help="as fast as possible")
     p.add_argument("--seed", type=int, help="random seed (default: the world's)")
     p.add_argument("--no-map", action="store_true", help="do not serve the floorplan as sim:map:0")
+    p.add_argument(
+        "--nav",
+        choices=("vfh", "nd", "snd"),
+        help="add the navigation stack per robot: amcl, this local planner and wavefront (rsal goto)",
+    )
+    p.add_argument(
+        "--nav-robots",
+        type=lambda t: [x for x in t.split(",") if x],
+        metavar="R0,R1",
+        help="robots that get the navigation stack (default: every robot with a laser)",
+    )
     p.add_argument("--require-timeout", type=_positive, default=30.0, help=argparse.SUPPRESS)
     add_transport_args(p)
     p.set_defaults(func=_sim)

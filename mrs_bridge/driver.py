@@ -9,7 +9,9 @@ or on another server. The server owns all Zenoh entities; a driver only implemen
   :class:`OutOfRange`) to reject it: the server logs a rate-limited warning and nothing changes;
 - ``on_rpc(addr, op, args)`` returning a result map; raise ``MessageError``/``OutOfRange``/
   :class:`~rsal.msgs.RpcError` for typed error replies;
-- ``geometry(addr)`` and ``ops(addr)`` for ``rpc/describe``; ``shutdown()`` to stop motors.
+- ``geometry(addr)`` and ``ops(addr)`` for ``rpc/describe``; ``shutdown()`` to stop motors;
+- ``send(addr, msg)`` commands a required device; ``request(addr, op, args)`` calls its rpc without
+  blocking and the answer arrives in ``on_reply(addr, op, result, error)``.
 
 Everything runs on the scheduler thread, so drivers need no locks.
 """
@@ -81,6 +83,9 @@ class Driver:
     def on_input(self, addr: DeviceAddr, channel: str, msg: dict) -> None:
         """Data (``channel == "data"``) or events from a required device."""
 
+    def on_reply(self, addr: DeviceAddr, op: str, result: dict | None, error: RpcError | None) -> None:
+        """The answer to :meth:`request` (``error`` set and ``result`` None if it failed)."""
+
     def on_cmd(self, addr: DeviceAddr, msg: dict) -> None:
         raise MessageError(f"{addr} takes no commands")
 
@@ -103,6 +108,18 @@ class Driver:
 
     def publish(self, addr: DeviceAddr, msg) -> None:
         self.server.publish(addr, msg)
+
+    def send(self, addr: DeviceAddr, msg) -> None:
+        """Command a (required) device: put ``msg`` on its ``cmd`` key."""
+        self.server.send(addr, msg)
+
+    def request(self, addr: DeviceAddr, op: str, args: dict | None = None, timeout: float = 5.0) -> None:
+        """Call ``rpc/<op>`` of a (required) device without blocking; see :meth:`on_reply`."""
+        self.server.request(self, addr, op, args, timeout)
+
+    def required(self, interface: str, key: str | None = None) -> list[DeviceAddr]:
+        """Required devices of ``interface`` (and Player role ``key``, e.g. "odometry", if given)."""
+        return [r for r in self.cfg.requires if r.interface == interface and (key is None or r.key == key)]
 
     def event(self, addr: DeviceAddr, msg) -> None:
         self.server.publish_event(addr, msg)

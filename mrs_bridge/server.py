@@ -33,7 +33,17 @@ import zenoh
 
 from rsal import keys
 from rsal.keys import DeviceAddr
-from rsal.msgs import Describe, ErrorCode, MessageError, RpcError, decode_map, encode, error_reply, ok_reply
+from rsal.msgs import (
+    Describe,
+    ErrorCode,
+    MessageError,
+    RpcError,
+    decode_map,
+    encode,
+    error_reply,
+    ok_reply,
+    parse_reply,
+)
 
 from .config import ConfigError, DriverConfig, ServerConfig
 from .driver import DRIVERS, Driver, OutOfRange
@@ -336,6 +346,14 @@ class DeviceServer:
                 self._warn(f"input:{addr}", f"malformed {channel} from {addr}: {e}")
                 return
             self._call(slot, slot.driver.on_input, addr, channel, msg)
+        elif kind == "reply":
+            _, slot, addr, op, res = item
+            if slot.state != "running":
+                return
+            if isinstance(res, RpcError):
+                self._call(slot, slot.driver.on_reply, addr, op, None, res)
+            else:
+                self._call(slot, slot.driver.on_reply, addr, op, res, None)
         elif kind == "live":
             _, slot, addr, alive = item
             if slot.state == "waiting":
@@ -431,6 +449,46 @@ class DeviceServer:
             return
         dev.pub.put(encode(msg))
         self.stats["published"] += 1
+
+    def send(self, addr: DeviceAddr, msg) -> None:
+        """Put a command on another device's ``cmd`` key (a required device, local or remote)."""
+        self.session.put(keys.cmd_key(addr.without_key()), encode(msg))
+
+    def request(self, slot_driver: Driver, addr: DeviceAddr, op: str, args: dict | None, timeout: float) -> None:
+        """Query ``rpc/<op>`` of another device; the result reaches ``driver.on_reply(addr, op, result,
+        error)`` on the scheduler thread (``error`` an :class:`RpcError`, ``result`` None then)."""
+        slot = next((s for s in self.slots if s.driver is slot_driver), None)
+        if slot is None:
+            raise ValueError("request() from a driver this server does not host")
+        key = keys.rpc_key(addr.without_key(), op)
+        got: list = []
+
+        def on_reply(reply) -> None:
+            if got:
+                return
+            try:
+                if reply.ok is not None:
+                    got.append(parse_reply(reply.ok.payload.to_bytes(), key=key))
+                else:
+                    parse_reply(reply.err.payload.to_bytes(), is_error=True, key=key)
+            except RpcError as e:
+                got.append(e)
+
+        def on_done() -> None:
+            if not got:
+                got.append(RpcError(ErrorCode.TIMEOUT, f"no reply within {timeout:g} s (is {addr} alive?)", key))
+            self.inbox.put(("reply", slot, addr, op, got[0]))
+
+        try:
+            self.session.get(
+                key,
+                zenoh.handlers.Callback(on_reply, on_done),
+                payload=encode(args or {}),
+                timeout=timeout,
+                target=zenoh.QueryTarget.BEST_MATCHING,
+            )
+        except Exception as e:
+            self.inbox.put(("reply", slot, addr, op, RpcError(ErrorCode.UNAVAILABLE, f"cannot send: {e}", key)))
 
     def publish_event(self, addr: DeviceAddr, msg) -> None:
         dev = self.devices.get(addr.without_key() if addr.key else addr)

@@ -1,6 +1,6 @@
 """The ``rsal`` command line.
 
-``rsal`` itself knows the commands of the RSAL layer (``ls``); the other layers add theirs through
+``rsal`` itself knows the commands of the RSAL layer (``ls``, ``goto``); the other layers add theirs through
 the ``rsal.commands`` entry-point group (``serve`` and ``sim`` from ``mrs_bridge``, ``demo`` from
 ``agents``), so this package never imports the layers above or beside it. Each entry point is a
 function ``register(subparsers)`` that adds a sub-command whose ``func(args) -> int`` runs it.
@@ -73,6 +73,62 @@ def _cmd_ls(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_goto(args: argparse.Namespace) -> int:
+    import math
+
+    from .client import Fabric
+    from .data import Position
+    from .msgs import RpcError
+
+    addr = f"{args.node}:planner:{args.index}"
+    with Fabric.connect(TransportArgs.from_namespace(args)) as fab:
+        node = fab.node(addr)
+        try:
+            node.wait_for(addr, timeout=args.wait)
+        except TimeoutError:
+            print(
+                f"rsal goto: no planner {addr} on the fabric within {args.wait:g} s (start one: "
+                f"'rsal sim maps/floor.world --nav vfh', or a wavefront driver with 'rsal serve')",
+                file=sys.stderr,
+            )
+            return 1
+        planner = fab.device(addr)
+        goal = Position(args.x, args.y, math.radians(args.yaw))
+        fut = planner.set_goal(goal, timeout=10.0)
+        if fut.done() and fut.exception() is not None:
+            print(f"rsal goto: {addr}: {fut.exception()}", file=sys.stderr)
+            return 1
+        print(f"[goto] {addr}: goal ({args.x:g}, {args.y:g}, {args.yaw:g} deg), {planner.waypoint_count} waypoints")
+        t0 = time.monotonic()
+        last_print = 0.0
+        while not fut.done():
+            now = time.monotonic()
+            if now - t0 > args.timeout:
+                planner.stop()
+                print(f"rsal goto: {addr}: not there after {args.timeout:g} s; stopped", file=sys.stderr)
+                return 1
+            if now - last_print >= args.progress:
+                last_print = now
+                m = planner.latest
+                if m is not None:
+                    d = math.hypot(m.pose[0] - args.x, m.pose[1] - args.y)
+                    print(
+                        f"[goto] {now - t0:5.1f} s  pose ({m.pose[0]:.2f}, {m.pose[1]:.2f})  {d:.2f} m to go  "
+                        f"waypoint {m.waypoint_index}/{max(m.waypoint_count - 1, 0)}  {m.status}",
+                        flush=True,
+                    )
+            time.sleep(0.05)
+        try:
+            fut.result()
+        except RpcError as e:
+            print(f"rsal goto: {addr}: {e}", file=sys.stderr)
+            return 1
+        m = planner.latest
+        pose = f" at ({m.pose[0]:.2f}, {m.pose[1]:.2f}, {math.degrees(m.pose[2]):.0f} deg)" if m else ""
+        print(f"[goto] {addr}: done after {time.monotonic() - t0:.1f} s{pose}", flush=True)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="rsal", description="RSAL fabric: peer-to-peer multi-robot platform over Zenoh.")
     ap.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
@@ -83,6 +139,17 @@ def build_parser() -> argparse.ArgumentParser:
     ls.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for each describe reply")
     add_transport_args(ls)
     ls.set_defaults(func=_cmd_ls)
+    go = sub.add_parser("goto", help="send a robot to a map pose through its planner and follow it there")
+    go.add_argument("node", metavar="NODE", help="the robot, e.g. r0")
+    go.add_argument("x", type=float, help="goal x in the map frame (m)")
+    go.add_argument("y", type=float, help="goal y in the map frame (m)")
+    go.add_argument("yaw", type=float, nargs="?", default=0.0, help="goal heading (degrees, default 0)")
+    go.add_argument("--index", type=int, default=0, help="planner index (default 0)")
+    go.add_argument("--timeout", type=float, default=300.0, help="give up after this many seconds (default 300)")
+    go.add_argument("--wait", type=float, default=10.0, help="seconds to wait for the planner to appear")
+    go.add_argument("--progress", type=float, default=2.0, help="seconds between progress lines (default 2)")
+    add_transport_args(go)
+    go.set_defaults(func=_cmd_goto)
     for ep in sorted(entry_points(group="rsal.commands"), key=lambda e: e.name):
         try:
             ep.load()(sub)

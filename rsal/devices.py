@@ -40,6 +40,8 @@ __all__ = [
     "Power",
     "Simulation",
     "MapDevice",
+    "Localize",
+    "Planner",
     "proxy_class",
 ]
 
@@ -389,6 +391,124 @@ class MapDevice(Device):
         return msgs.MapData.from_dict(self.rpc("get", timeout=timeout))
 
 
+class Localize(Device):
+    """A localizer (Player's localize; the ``amcl`` driver): the robot's pose on the map with its
+    covariance (thesis eq. 3.3-3.4) and the hypotheses behind it."""
+
+    data_type = msgs.LocalizeData
+
+    def get_position(self) -> Position | None:
+        """The best pose estimate, or None before the first update."""
+        m = self.latest
+        return Position(*m.pose) if m is not None else None
+
+    def covariance(self) -> np.ndarray | None:
+        m = self.latest
+        return np.asarray(m.cov, dtype=float).reshape(3, 3) if m is not None else None
+
+    def hypotheses(self) -> list[msgs.Hypothesis]:
+        m = self.latest
+        return list(m.hypotheses) if m is not None else []
+
+    def set_position(self, pose: Position, cov=(0.25, 0.25, math.radians(15) ** 2), timeout: float = 5.0) -> dict:
+        """Re-initialise the filter around ``pose``; ``cov`` is a 3x3 matrix or its diagonal
+        (m², m², rad²). The thesis's way to help a robot that cannot find itself (3.4.2)."""
+        c = np.asarray(cov, dtype=float)
+        if c.shape == (3,):
+            c = np.diag(c)
+        if c.shape != (3, 3):
+            raise ValueError("cov must be a 3x3 matrix or its diagonal (3 values)")
+        return self.rpc("set_pose", timeout=timeout, pose=list(pose.as_tuple()), cov=[float(x) for x in c.ravel()])
+
+    def set_global(self, timeout: float = 5.0) -> dict:
+        """Forget the pose: global localization over all free space."""
+        return self.rpc("set_global", timeout=timeout)
+
+
+class Planner(Device):
+    """A global planner (Player's planner; the ``wavefront`` driver): goals in the map frame.
+
+    :meth:`set_goal` returns a future that resolves to the final status, ``"done"``, or raises
+    :class:`~rsal.msgs.RpcError` (``not_found`` for an invalid goal: outside the map, in an obstacle,
+    unreachable; ``unavailable`` when aborted, e.g. a replan failed, or superseded by another goal).
+    """
+
+    data_type = msgs.PlannerData
+
+    def __init__(self, fabric, addr):
+        super().__init__(fabric, addr)
+        self._goal_futures: list[tuple[int, Future]] = []
+        self._done_listeners: list[Callable[[str], None]] = []
+        self._glock = threading.Lock()
+
+    @property
+    def status(self) -> str:
+        m = self.latest
+        return m.status if m is not None else "idle"
+
+    @property
+    def waypoint_count(self) -> int:
+        m = self.latest
+        return m.waypoint_count if m is not None else 0
+
+    @property
+    def waypoint_index(self) -> int:
+        m = self.latest
+        return m.waypoint_index if m is not None else 0
+
+    def current_waypoint(self) -> Position | None:
+        m = self.latest
+        return Position(*m.waypoint) if m is not None and m.waypoint else None
+
+    def waypoints(self, timeout: float = 5.0) -> list[Position]:
+        return [Position(*w) for w in self.rpc("waypoints", timeout=timeout)["waypoints"]]
+
+    def set_goal(self, goal: Position, timeout: float = 5.0) -> Future:
+        """Plan to ``goal`` and drive there. The future resolves to "done" or raises RpcError."""
+        fut: Future = Future()
+        try:
+            r = self.rpc("set_goal", timeout=timeout, goal=list(goal.as_tuple()))
+        except Exception as e:  # RpcError (invalid goal, timeout) ends the future at once
+            fut.set_exception(e)
+            return fut
+        with self._glock:
+            for _, f in self._goal_futures:  # a new goal supersedes the old ones
+                if not f.done():
+                    f.set_exception(msgs.RpcError(msgs.ErrorCode.UNAVAILABLE, "superseded by a new goal"))
+            self._goal_futures = [(int(r.get("goal_id", 0)), fut)]
+        return fut
+
+    def stop(self, timeout: float = 5.0) -> dict:
+        return self.rpc("stop", timeout=timeout)
+
+    def resume(self, timeout: float = 5.0) -> dict:
+        return self.rpc("resume", timeout=timeout)
+
+    def add_is_done_listener(self, fn: Callable[[str], None]) -> None:
+        """``fn(status)`` when a goal ends: "done", "aborted" or "invalid"."""
+        self._done_listeners.append(fn)
+
+    def _handle_event(self, ev: dict) -> None:
+        kind = ev.get("event")
+        if kind not in ("done", "aborted", "invalid"):
+            return
+        gid = ev.get("goal_id", 0)
+        with self._glock:
+            keep = []
+            for g, f in self._goal_futures:
+                if g != gid:
+                    keep.append((g, f))
+                elif not f.done():
+                    if kind == "done":
+                        f.set_result("done")
+                    else:
+                        code = msgs.ErrorCode.NOT_FOUND if kind == "invalid" else msgs.ErrorCode.UNAVAILABLE
+                        f.set_exception(msgs.RpcError(code, str(ev.get("message", kind))))
+            self._goal_futures = keep
+        for fn in self._done_listeners:
+            self.fabric.dispatcher.submit(fn, kind)
+
+
 _PROXIES: dict[str, type[Device]] = {
     "position2d": Position2d,
     "ranger": Ranger,
@@ -399,6 +519,8 @@ _PROXIES: dict[str, type[Device]] = {
     "power": Power,
     "simulation": Simulation,
     "map": MapDevice,
+    "localize": Localize,
+    "planner": Planner,
 }
 
 

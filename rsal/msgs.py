@@ -41,6 +41,11 @@ __all__ = [
     "PowerData",
     "SimulationData",
     "MapData",
+    "GoalCmd",
+    "Hypothesis",
+    "LocalizeData",
+    "PlannerData",
+    "PLANNER_STATUS",
     "Describe",
     "f32_bytes",
     "f32_array",
@@ -468,6 +473,107 @@ class MapData(_Msg):
             get_float(m, "resolution", lo=1e-6),
             get_vec(m, "origin", 2),
             np.frombuffer(raw, dtype=np.int8).reshape(h, w),
+        )
+
+
+# ---------------------------------------------------------------------------- navigation
+@dataclass(frozen=True)
+class GoalCmd(_Msg):
+    """position2d ``cmd`` of a local planner (vfh, nd, snd): drive to ``goal`` (x, y, yaw) in the
+    device's frame. Player's ``GoTo``; a :class:`VelocityCmd` on the same key cancels the goal."""
+
+    goal: tuple[float, float, float]
+
+    @classmethod
+    def from_dict(cls, m: dict) -> GoalCmd:
+        return cls(get_vec(m, "goal", 3))
+
+
+def _cov9(m: dict, name: str) -> tuple[float, ...]:
+    c = get_vec(m, name, 9)
+    if c[0] < 0 or c[4] < 0 or c[8] < 0:
+        raise MessageError(f"field {name!r} must be a covariance (non-negative diagonal)")
+    return c
+
+
+@dataclass(frozen=True)
+class Hypothesis(_Msg):
+    """One pose hypothesis of a localizer: ``weight`` in [0, 1], ``pose`` mean (x, y, yaw) in the map
+    frame, ``cov`` its 3x3 covariance row-major (m², rad²)."""
+
+    weight: float
+    pose: tuple[float, float, float]
+    cov: tuple[float, ...]
+
+    @classmethod
+    def from_dict(cls, m: dict) -> Hypothesis:
+        if not isinstance(m, dict):
+            raise MessageError("each hypothesis must be a map")
+        return cls(get_float(m, "weight", lo=0.0, hi=1.0 + 1e-9), get_vec(m, "pose", 3), _cov9(m, "cov"))
+
+
+@dataclass(frozen=True)
+class LocalizeData(_Msg):
+    """localize ``data`` (Player's localize interface; thesis eq. 3.3-3.4): the best estimate ``pose``
+    with covariance ``cov`` (row-major 3x3), every ``hypotheses`` entry heaviest first, the number of
+    ``particles``, and ``pending`` sensor updates skipped (0 when keeping up)."""
+
+    t: float
+    pose: tuple[float, float, float]
+    cov: tuple[float, ...]
+    hypotheses: list[Hypothesis] = field(default_factory=list)
+    particles: int = 0
+    pending: int = 0
+
+    @classmethod
+    def from_dict(cls, m: dict) -> LocalizeData:
+        raw = _need(m, "hypotheses", False) or []
+        if not isinstance(raw, list):
+            raise MessageError("field 'hypotheses' must be a list")
+        return cls(
+            get_float(m, "t"),
+            get_vec(m, "pose", 3),
+            _cov9(m, "cov"),
+            [Hypothesis.from_dict(h) for h in raw],
+            get_int(m, "particles", 0, lo=0),
+            get_int(m, "pending", 0, lo=0),
+        )
+
+
+PLANNER_STATUS = ("idle", "driving", "done", "aborted", "invalid")
+
+
+@dataclass(frozen=True)
+class PlannerData(_Msg):
+    """planner ``data`` (Player's planner interface): ``status`` one of idle, driving, done, aborted
+    (a replan failed), invalid (the goal cannot be planned); ``pose`` the localized pose, ``goal`` and
+    ``waypoint`` (current target) in the map frame (empty list when none), ``waypoint_index`` of
+    ``waypoint_count``; ``message`` says why for aborted/invalid."""
+
+    t: float
+    status: str
+    pose: tuple[float, float, float]
+    goal: tuple[float, ...] = ()
+    waypoint: tuple[float, ...] = ()
+    waypoint_index: int = 0
+    waypoint_count: int = 0
+    message: str = ""
+
+    @classmethod
+    def from_dict(cls, m: dict) -> PlannerData:
+        def opt3(name: str) -> tuple[float, ...]:
+            v = _need(m, name, False)
+            return () if v is None or v == [] else get_vec(m, name, 3)
+
+        return cls(
+            get_float(m, "t"),
+            get_str(m, "status", choices=PLANNER_STATUS),
+            get_vec(m, "pose", 3),
+            opt3("goal"),
+            opt3("waypoint"),
+            get_int(m, "waypoint_index", 0, lo=0),
+            get_int(m, "waypoint_count", 0, lo=0),
+            get_str(m, "message", ""),
         )
 
 

@@ -13,6 +13,10 @@ from rsal.msgs import (
     BlobData,
     BlobfinderData,
     Describe,
+    GoalCmd,
+    Hypothesis,
+    LocalizeData,
+    PlannerData,
     ErrorCode,
     GripperCmd,
     GripperData,
@@ -63,6 +67,18 @@ SIMPLE = [
     GripperData(1.0, "opening", "lowering", 0, 0, None),
     PowerData(5.0, 12.4, 87.5, charging=True),
     SimulationData(100.0, 1000, False, 9.8),
+    GoalCmd((1.0, -2.0, 0.5)),
+    Hypothesis(0.75, (1.0, 2.0, 0.1), (0.01, 0, 0, 0, 0.02, 0, 0, 0, 0.003)),
+    LocalizeData(
+        4.0,
+        (1.0, 2.0, 0.1),
+        (0.01, 0, 0, 0, 0.02, 0, 0, 0, 0.003),
+        [Hypothesis(0.75, (1.0, 2.0, 0.1), (0.01, 0, 0, 0, 0.02, 0, 0, 0, 0.003))],
+        500,
+        0,
+    ),
+    PlannerData(5.0, "driving", (1.0, 2.0, 0.0), (5.0, 6.0, 1.57), (3.0, 2.0, 0.7), 1, 4),
+    PlannerData(5.0, "invalid", (1.0, 2.0, 0.0), message="goal (9, 9) is inside an obstacle"),
     Describe(
         "r0",
         "laser",
@@ -111,6 +127,21 @@ def test_map_data_roundtrip_keeps_rows_and_values():
     assert (back.width, back.height, back.resolution, back.origin) == (3, 2, 0.05, (-1.5, 2.0))
     np.testing.assert_array_equal(back.cells, cells)
     assert back.cells.shape == (2, 3)
+
+
+@pytest.mark.parametrize(
+    "cls, payload, field",
+    [
+        (GoalCmd, {"goal": [1.0, 2.0]}, "goal"),
+        (GoalCmd, {"goal": [1.0, NAN, 0.0]}, "goal"),
+        (Hypothesis, {"weight": 2.0, "pose": [0, 0, 0], "cov": [0] * 9}, "weight"),
+        (LocalizeData, {"t": 0.0, "pose": [0, 0, 0], "cov": [-1, 0, 0, 0, 1, 0, 0, 0, 1]}, "cov"),
+        (PlannerData, {"t": 0.0, "status": "lost", "pose": [0, 0, 0]}, "status"),
+    ],
+)
+def test_navigation_messages_reject_bad_fields(cls, payload, field):
+    with pytest.raises(MessageError, match=field):
+        decode(cls, encode(payload))
 
 
 def test_every_message_class_is_covered():
