@@ -2,8 +2,8 @@
 
 One call casts every ray of every sensor due this tick. Rays come in *fans*: a fan has an origin,
 a first angle, an angular increment, a ray count, a maximum range and an owner body (which its
-rays ignore). A laser is one fan; a sonar transducer is a small fan across its cone (the minimum
-is taken afterwards); a blobfinder's occlusion test is a fan of one ray.
+rays ignore). A laser is one fan; a sonar transducer is a small fan across its cone whose minimum
+:func:`segment_min` takes afterwards; a blobfinder's occlusion test is a fan of one ray.
 
 Static geometry: sphere tracing on the map's Euclidean distance field (a step of the clearance
 minus 1.5 cells is always safe) while far from walls, then an exact Amanatides-Woo grid walk
@@ -23,7 +23,7 @@ import math
 import numba as nb
 import numpy as np
 
-__all__ = ["CircleIndex", "cast_fans", "cast_fans_numpy"]
+__all__ = ["CircleIndex", "cast_fans", "cast_fans_numpy", "segment_min"]
 
 _TWO_PI = 2.0 * math.pi
 
@@ -235,6 +235,28 @@ def _cast_fans(
             elif r > rmax:
                 r = rmax
             out[off + i] = r
+
+
+@nb.njit(cache=True)
+def _segment_min(values, starts, counts, out):
+    for j in range(starts.shape[0]):
+        s = starts[j]
+        m = values[s]
+        for i in range(s + 1, s + counts[j]):
+            if values[i] < m:
+                m = values[i]
+        out[j] = m
+
+
+def segment_min(values: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """``out[j] = values[starts[j] : starts[j] + counts[j]].min()`` for every segment ``j`` (each
+    ``counts[j] >= 1``), in one compiled pass: the readings of a scan whose sonar cones are several
+    rays and whose laser beams are one. Same dtype as ``values``."""
+    starts = np.ascontiguousarray(starts, dtype=np.int64)
+    counts = np.ascontiguousarray(counts, dtype=np.int64)
+    out = np.empty(starts.shape[0], dtype=values.dtype)
+    _segment_min(np.ascontiguousarray(values), starts, counts, out)
+    return out
 
 
 class CircleIndex:

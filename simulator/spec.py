@@ -33,8 +33,9 @@ Pose = tuple[float, float, float]
 
 @dataclass
 class RangerSensorSpec:
-    """One transducer group of a ranger: a laser has one with many samples, a sonar ring one
-    per transducer with ``samples == 1`` and ``fov`` the cone width."""
+    """One transducer group of a ranger: a laser has one with many samples (one reading per
+    beam), a sonar ring one per transducer with ``samples == 1`` and ``fov`` the cone width (one
+    reading, the nearest hit in the cone). A ranger may mix both."""
 
     pose: Pose = (0.0, 0.0, 0.0)  # in the robot frame: m, m, rad
     range_min: float = 0.0  # m
@@ -48,8 +49,9 @@ class RangerSensorSpec:
 class RangerSpec:
     """A ranger device (Stage ``ranger``): a list of sensors read together as one scan.
 
-    ``kind`` is ``"laser"`` when it has one multi-sample sensor, ``"sonar"`` when it has one
-    single-sample cone sensor per transducer; the parsers decide, a world may say so explicitly.
+    ``kind`` is ``"laser"`` when it has one multi-sample sensor, ``"sonar"`` otherwise (one
+    single-sample cone sensor per transducer, or a mix); the parsers decide, a world may say so
+    explicitly. The simulator reads every layout the same way, sensor by sensor.
     """
 
     name: str = "ranger"

@@ -5,14 +5,17 @@ This plays Stage's role (thesis 2.2.1, appendix A.1, A.4-A.6). A :class:`World` 
 (Stage's ``interval_sim``, 100 ms by default). Each step:
 
 1. every robot's velocity approaches its commanded ``(v, w)`` within its acceleration and speed
-   limits (Player's position2d velocity command) and is handed to its pymunk body;
-2. pymunk moves the bodies: robots collide with the floorplan's walls (static boxes merged from the
-   bitmap's occupied cells), with each other, and push objects that have ``obstacle_return``;
+   limits (Player's position2d velocity command);
+2. pymunk moves the bodies: before each sub-step the motors of all robots are applied in one
+   vectorised pass through pymunk's batch interface (:meth:`World._run_motors`); robots collide
+   with the floorplan's walls (static boxes merged from the bitmap's occupied cells), with each
+   other, and push objects that have ``obstacle_return``;
 3. odometry integrates each robot's true motion in its own frame with a per-robot scale bias and
    white noise, so it drifts the way a wheel encoder does (Stage's ``odom_error``);
 4. carried objects follow their gripper; grippers' paddles and lifts move and their beams update;
 5. the rangers due this step (lasers and sonar cones of *all* robots) are cast in one batched,
-   compiled pass (:mod:`simulator.raycast`), then noise is added to all ranges at once;
+   compiled pass (:mod:`simulator.raycast`) that also adds their noise; each sonar transducer then
+   reads the minimum over its cone;
    blobfinders look for coloured bodies in their field of view with one occlusion ray each.
 
 The simulation interface of Player (and the thesis's ``setPositionOf`` for mixed-reality proxies)
@@ -29,10 +32,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pymunk
+import pymunk.batch
 
 from .errors import ModelError, SimulatorError
 from .gridmap import GridMap
-from .raycast import CircleIndex, cast_fans
+from .raycast import CircleIndex, cast_fans, segment_min
 from .spec import BlobfinderSpec, GripperSpec, ModelSpec, RangerSpec, WorldSpec
 
 __all__ = ["World", "RangerReading", "Blob", "GripperState", "SONAR_SUBRAYS"]
@@ -41,6 +45,13 @@ log = logging.getLogger(__name__)
 
 SONAR_SUBRAYS = 5  # rays spread across a sonar cone; the transducer reads their minimum
 _CIRCLE_CELL = 2.0  # m, hash-grid cell of the dynamic-body index
+_F = pymunk.batch.BodyFields
+# Motor pass: per body [angle, vx, vy, w, fx, fy, torque] (pymunk's batch layout: fields in flag order).
+_MOTOR_GET = _F.BODY_ID | _F.ANGLE | _F.VELOCITY | _F.ANGULAR_VELOCITY | _F.FORCE | _F.TORQUE
+_MOTOR_SET = _F.VELOCITY | _F.ANGULAR_VELOCITY | _F.FORCE | _F.TORQUE
+_POSE_GET = _F.BODY_ID | _F.POSITION | _F.ANGLE  # per body [x, y, angle]
+# Per-robot state arrays, one row per robot.
+_ROBOT_ARRAYS = ("_cmd", "_vel", "_limits", "_odom", "_bias", "_noise", "_prev", "_stall", "_drive", "_mass", "_moment")
 
 
 def _wrap(a):
@@ -91,7 +102,8 @@ class _Gripper:
     spec: GripperSpec
     paddles: str = "open"
     lift: str = "down"
-    progress: float = 0.0  # seconds of the current motion done
+    paddle_progress: float = 0.0  # seconds of the current paddle motion done
+    lift_progress: float = 0.0  # seconds of the current lift motion done (the lift moves independently)
     carrying: str | None = None
     inner_beam: bool = False
     outer_beam: bool = False
@@ -117,7 +129,6 @@ class _Model:
     readings: list[RangerReading | None] = field(default_factory=list)
     blobfinders: list[_Blobfinder] = field(default_factory=list)
     grippers: list[_Gripper] = field(default_factory=list)
-    drive: tuple[float, float] = (0.0, 0.0)  # (v, w) the motor applies this step (robots only)
     carried_by: str | None = None  # name of the robot whose gripper holds this object
     in_space: bool = True
 
@@ -152,6 +163,7 @@ class World:
         self._next_uid = 0
         self._fans_dirty = True
         self._scan_out: np.ndarray | None = None
+        self._reduce: tuple[np.ndarray, np.ndarray] | None = None  # (first ray, ray count) per reading
         self._add_walls()
         n0 = 0
         self._cmd = np.zeros((n0, 2))
@@ -162,6 +174,18 @@ class World:
         self._noise = np.zeros((n0, 3))
         self._prev = np.zeros((n0, 3))
         self._stall = np.zeros(n0, dtype=bool)
+        self._drive = np.zeros((n0, 2))  # (v, w) the motors applied in the last step
+        self._mass = np.zeros(n0)  # kg, and moment of inertia in kg m^2, of each robot body
+        self._moment = np.zeros(n0)
+        # Batch buffers, reused: pymunk allocates one per Buffer and never frees it.
+        self._get_buf = pymunk.batch.Buffer()  # reads fill its own arrays
+        self._set_buf = pymunk.batch.Buffer()  # writes are handed a numpy array each time
+        self._bodies_dirty = True  # the space's bodies or the robot rows changed since the last map
+        self._body_ids = np.zeros(0, dtype=np.uintp)  # space's bodies, in batch order
+        self._body_rows = np.zeros(0, dtype=np.int64)  # robot row of each, -1 for objects
+        self._body_seen = np.zeros(0, dtype=bool)  # has laser_return: rangers see it as a circle
+        self._body_radius = np.zeros(0)  # m, that circle's radius
+        self._body_uid = np.zeros(0, dtype=np.int64)  # owner id in the ray caster
         for m in self.spec.models:
             self._add(m)
 
@@ -188,23 +212,6 @@ class World:
         self.space.add(*shapes)
         self._wall_count = len(shapes)
 
-    @staticmethod
-    def _motor(model: _Model):
-        """The robot's drive, run by pymunk where it integrates velocities: it sets the body's
-        velocity to the commanded (v, w) *before* contacts are solved, so walls and other bodies
-        still stop or deflect it. Heading at mid-step and the chord speed make each step land
-        exactly on the commanded arc (exact integration of the unicycle model)."""
-
-        def velocity_func(body, gravity, damping, h):
-            v, w = model.drive
-            half = 0.5 * h * w
-            chord = v * (math.sin(half) / half if abs(half) > 1e-12 else 1.0)
-            a = body.angle + half
-            body.velocity = (chord * math.cos(a), chord * math.sin(a))
-            body.angular_velocity = w
-
-        return velocity_func
-
     def _add(self, spec: ModelSpec) -> _Model:
         if spec.name in self._models:
             raise ModelError(f"a model named {spec.name!r} already exists; choose another name")
@@ -224,7 +231,6 @@ class World:
         self._next_uid += 1
         self._models[spec.name] = model
         if spec.position:
-            body.velocity_func = self._motor(model)
             model.rangers = list(spec.rangers)
             model.readings = [None] * len(spec.rangers)
             model.blobfinders = [_Blobfinder(b) for b in spec.blobfinders]
@@ -241,7 +247,10 @@ class World:
             self._noise = np.vstack([self._noise, np.asarray(spec.odom_noise, dtype=float)])
             self._prev = np.vstack([self._prev, [x, y, a]])
             self._stall = np.append(self._stall, False)
-        self._fans_dirty = True
+            self._drive = np.vstack([self._drive, [0.0, 0.0]])
+            self._mass = np.append(self._mass, body.mass)
+            self._moment = np.append(self._moment, body.moment)
+        self._fans_dirty = self._bodies_dirty = True
         return model
 
     # ------------------------------------------------------------------ model access
@@ -313,12 +322,12 @@ class World:
             r = m.row
             keep = np.ones(len(self._robots), dtype=bool)
             keep[r] = False
-            for attr in ("_cmd", "_vel", "_limits", "_odom", "_bias", "_noise", "_prev", "_stall"):
+            for attr in _ROBOT_ARRAYS:
                 setattr(self, attr, getattr(self, attr)[keep])
             self._robots.pop(r)
             for i, rm in enumerate(self._robots):
                 rm.row = i
-        self._fans_dirty = True
+        self._fans_dirty = self._bodies_dirty = True
 
     def pause(self, paused: bool = True) -> None:
         """While paused, :meth:`advance` does nothing; :meth:`step` still steps (Stage's step button)."""
@@ -334,8 +343,8 @@ class World:
         m = self._robot(name)
         if not (math.isfinite(v) and math.isfinite(w)):
             raise ModelError(f"set_velocity({name!r}): v={v!r}, w={w!r} must be finite")
-        lim = self._limits[m.row]
-        self._cmd[m.row] = (float(np.clip(v, -lim[0], lim[0])), float(np.clip(w, -lim[1], lim[1])))
+        vmax, wmax = float(self._limits[m.row, 0]), float(self._limits[m.row, 1])
+        self._cmd[m.row] = (min(max(float(v), -vmax), vmax), min(max(float(w), -wmax), wmax))
 
     def velocity(self, name: str) -> tuple[float, float]:
         """The robot's current ``(v, w)`` after acceleration limits and collisions."""
@@ -383,16 +392,16 @@ class World:
         cmd = str(command).lower()
         if cmd == "open":
             if g.paddles not in ("open", "opening"):
-                g.paddles, g.progress = "opening", 0.0
+                g.paddles, g.paddle_progress = "opening", 0.0
         elif cmd == "close":
             if g.paddles not in ("closed", "closing"):
-                g.paddles, g.progress = "closing", 0.0
+                g.paddles, g.paddle_progress = "closing", 0.0
         elif cmd == "up":
             if g.lift not in ("up", "raising"):
-                g.lift, g.progress = "raising", 0.0
+                g.lift, g.lift_progress = "raising", 0.0
         elif cmd == "down":
             if g.lift not in ("down", "lowering"):
-                g.lift, g.progress = "lowering", 0.0
+                g.lift, g.lift_progress = "lowering", 0.0
         elif cmd == "stop":
             g.paddles = {"opening": "open", "closing": "open"}.get(g.paddles, g.paddles)
             g.lift = {"raising": "down", "lowering": "down"}.get(g.lift, g.lift)
@@ -420,31 +429,21 @@ class World:
 
     def _step_once(self) -> None:
         dt = self.spec.interval_sim
-        robots = self._robots
-        n = len(robots)
+        n = len(self._robots)
         if n:
             # 1. acceleration-limited velocity towards the command.
             dv = np.clip(self._cmd - self._vel, -self._limits[:, 2:4] * dt, self._limits[:, 2:4] * dt)
             self._vel += dv
         # 2. physics.
         h = dt / self.substeps
-        for i, m in enumerate(robots):
-            drive = (float(self._vel[i, 0]), float(self._vel[i, 1]))
-            if drive != m.drive:
-                # A new command moves the body from this step's first sub-step on; an unchanged one
-                # is left to the motor, so contact corrections from the last step persist.
-                m.drive = drive
-                self._motor(m)(m.body, None, None, h)
-        for _ in range(self.substeps):
+        for k in range(self.substeps):
+            if n:
+                self._run_motors(h, first=k == 0)
             self.space.step(h)
         self.time = (self.steps + 1) * dt
         self.steps += 1
         if n:
-            pose = np.empty((n, 3))
-            for i, m in enumerate(robots):
-                b = m.body
-                p = b.position
-                pose[i] = (p.x, p.y, b.angle)
+            pose = self._robot_poses()
             self._update_odometry(pose, dt)
             self._prev = pose
         # 4. grippers and carried objects.
@@ -452,6 +451,77 @@ class World:
         # 5. sensors.
         self._update_rangers()
         self._update_blobfinders()
+
+    # ------------------------------------------------------------------ motors
+    def _space_bodies(self, fields, width: int) -> tuple[np.ndarray, np.ndarray]:
+        """Every body in the space in one batched read: ``(rows, values)`` with ``rows[i]`` the
+        robot row of body ``i`` (-1 for an object) and ``values[i]`` its ``width`` floats."""
+        buf = self._get_buf
+        buf.clear()
+        pymunk.batch.get_space_bodies(self.space, fields, buf)
+        ids = np.frombuffer(buf.int_buf(), dtype=np.uintp)
+        if self._bodies_dirty or not np.array_equal(ids, self._body_ids):
+            # Bodies were added or removed (pymunk reorders its list on removal): map them again.
+            model_of = {m.body.id: m for m in self._models.values()}
+            ms = [model_of.get(int(i)) for i in ids]  # None: a body added to the space from outside
+            self._body_rows = np.array([m.row if m else -1 for m in ms], dtype=np.int64)
+            self._body_seen = np.array([bool(m and m.spec.laser_return) for m in ms], dtype=bool)
+            self._body_radius = np.array([m.radius if m else 0.0 for m in ms], dtype=float)
+            self._body_uid = np.array([m.uid if m else -1 for m in ms], dtype=np.int64)
+            self._body_ids = ids.copy()
+            self._bodies_dirty = False
+        vals = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(ids.size, width)
+        return self._body_rows, vals
+
+    def _run_motors(self, h: float, first: bool) -> None:
+        """Drive every robot body for one pymunk sub-step of ``h`` seconds, in one batched pass.
+
+        The motor is a force and torque that make pymunk's velocity integration (damped previous
+        velocity plus force over mass) land exactly on the commanded ``(v, w)``, so the velocity is
+        set *before* contacts are solved: walls and other bodies still stop or deflect the robot,
+        and the next position update moves it with the corrected velocity. The linear velocity is
+        the chord of the step's arc along the heading at mid-step (exact integration of the
+        unicycle model). On the first sub-step of a step, a robot whose drive changed gets the new
+        velocity at once, so it moves from this step on; an unchanged drive leaves the contact
+        corrections of the last step in place."""
+        rows, b = self._space_bodies(_MOTOR_GET, 7)
+        b = b.copy()  # becomes the write buffer: [angle, vx, vy, w, fx, fy, torque]
+        r = rows >= 0
+        rr = rows[r]
+        v, w = self._vel[rr, 0], self._vel[rr, 1]
+        half = 0.5 * h * w
+        small = np.abs(half) <= 1e-12
+        chord = v * np.where(small, 1.0, np.sin(half) / np.where(small, 1.0, half))
+        ang = b[r, 0]
+        cur = b[r, 1:4]
+        if first:
+            changed = (self._vel[rr] != self._drive[rr]).any(axis=1)
+            if changed.any():
+                a0 = ang[changed] + half[changed]
+                cur[changed] = np.stack([chord[changed] * np.cos(a0), chord[changed] * np.sin(a0), w[changed]], 1)
+            self._drive[rr] = self._vel[rr]
+        # Heading after pymunk's position update (angle + w h), then half the step's turn on.
+        a = ang + cur[:, 2] * h + half
+        damp = self.space.damping**h
+        mass = self._mass[rr]
+        b[r, 1:4] = cur
+        b[r, 4] = mass * (chord * np.cos(a) - cur[:, 0] * damp) / h
+        b[r, 5] = mass * (chord * np.sin(a) - cur[:, 1] * damp) / h
+        b[r, 6] = self._moment[rr] * (w - cur[:, 2] * damp) / h
+        self._set_buf.set_float_buf(np.ascontiguousarray(b[:, 1:]).reshape(-1))
+        pymunk.batch.set_space_bodies(self.space, _MOTOR_SET, self._set_buf)
+
+    def _robot_poses(self) -> np.ndarray:
+        """``(x, y, angle)`` of every robot, by row, in one batched read."""
+        rows, b = self._space_bodies(_POSE_GET, 3)
+        pose = np.empty((len(self._robots), 3))
+        r = rows >= 0
+        pose[rows[r]] = b[r]
+        if r.sum() < len(self._robots):  # a robot held by a gripper is out of the space
+            for m in self._robots:
+                if not m.in_space:
+                    pose[m.row] = (m.body.position.x, m.body.position.y, m.body.angle)
+        return pose
 
     def _update_odometry(self, pose: np.ndarray, dt: float) -> None:
         d = pose - self._prev
@@ -477,17 +547,21 @@ class World:
 
     # ------------------------------------------------------------------ rangers
     def _rebuild_fans(self) -> None:
-        """Flatten every robot's ranger sensors into fan tables (done when models change)."""
-        rob, lx, ly, lth, th0, dth, nr, rmin, rmax, noise, every = ([] for _ in range(11))
-        # model, ranger index, its first fan, ray offset, ray count, transducers, rays per transducer
-        rangers: list[tuple[_Model, int, int, int, int, int, int]] = []
-        ray = 0
+        """Flatten every robot's ranger sensors into fan tables (done when models change).
+
+        Each sensor is one fan. A sensor with ``samples > 1`` (a laser, or part of one) gives one
+        reading per beam; a single-sample sensor (a sonar transducer) is cast as a fan across its
+        cone and gives one reading, the minimum of its rays. Sensors of both shapes may share a
+        ranger; its readings follow the order of its sensors."""
+        rob, lx, ly, lth, dth, nr, rmin, rmax, noise, every, cone = ([] for _ in range(11))
+        # model, ranger index, its first fan, its first reading, its reading count
+        rangers: list[tuple[_Model, int, int, int, int]] = []
+        reading = 0
         dt = self.spec.interval_sim
         for m in self._robots:
             for ri, rs in enumerate(m.rangers):
-                start = ray
                 first_fan = len(rob)
-                sonar = rs.kind == "sonar" or all(s.samples <= 1 for s in rs.sensors)
+                first_reading = reading
                 k_every = max(1, int(round(rs.interval / dt)))
                 px, py, pa = rs.pose
                 cpa, spa = math.cos(pa), math.sin(pa)
@@ -501,28 +575,24 @@ class World:
                         count = SONAR_SUBRAYS if s.fov > 0 else 1
                         step = s.fov / (count - 1) if count > 1 else 0.0
                         first = a - s.fov / 2 if count > 1 else a
+                        reading += 1
                     else:
                         count = int(s.samples)
                         step = s.fov / (count - 1)
                         first = a - s.fov / 2
+                        reading += count
                     rob.append(m.row)
                     lx.append(x)
                     ly.append(y)
                     lth.append(first)
-                    th0.append(first)
                     dth.append(step)
                     nr.append(count)
                     rmin.append(s.range_min)
                     rmax.append(s.range_max)
                     noise.append(s.noise)
                     every.append(k_every)
-                    ray += count
-                total = ray - start
-                if sonar:
-                    per = SONAR_SUBRAYS if rs.sensors and rs.sensors[0].fov > 0 else 1
-                    rangers.append((m, ri, first_fan, start, total, len(rs.sensors), per))
-                else:
-                    rangers.append((m, ri, first_fan, start, total, 1, total))
+                    cone.append(s.samples <= 1)
+                rangers.append((m, ri, first_fan, first_reading, reading - first_reading))
         f = {
             "robot": np.asarray(rob, dtype=np.int64),
             "lx": np.asarray(lx, dtype=float),
@@ -537,19 +607,29 @@ class World:
         }
         n = f["n"]
         f["uids"] = np.array([m.uid for m in self._robots], dtype=np.int64)
+        # Readings from rays: a beam is one ray, a cone the minimum of its fan's rays.
+        is_cone = np.asarray(cone, dtype=bool) & (n > 1)
+        if is_cone.any():
+            per_fan = np.where(is_cone, 1, n)  # readings per fan
+            fan_of = np.repeat(np.arange(n.size), per_fan)
+            ray0 = np.cumsum(n) - n
+            local = np.arange(int(per_fan.sum())) - np.repeat(np.cumsum(per_fan) - per_fan, per_fan)
+            counts = np.where(is_cone[fan_of], n[fan_of], 1)
+            self._reduce = (ray0[fan_of] + local, counts)
+        else:
+            self._reduce = None  # every reading is one ray: readings are views of the scan
         self._fans = f
         self._ranger_slices = rangers
         self._scan_out = np.zeros(int(n.sum()), dtype=np.float32)
         self._fans_dirty = False
 
     def _circle_index(self) -> CircleIndex:
-        ms = [m for m in self._models.values() if m.spec.laser_return and m.carried_by is None]
-        if not ms:
+        """The bodies rangers see: models with ``laser_return`` in the space (not carried)."""
+        _, xy = self._space_bodies(_F.BODY_ID | _F.POSITION, 2)
+        seen = self._body_seen
+        if not seen.any():
             return CircleIndex.empty()
-        xy = np.array([(m.body.position.x, m.body.position.y) for m in ms])
-        r = np.array([m.radius for m in ms])
-        uid = np.array([m.uid for m in ms], dtype=np.int64)
-        return CircleIndex(xy[:, 0], xy[:, 1], r, uid, cell=_CIRCLE_CELL)
+        return CircleIndex(xy[seen, 0], xy[seen, 1], self._body_radius[seen], self._body_uid[seen], cell=_CIRCLE_CELL)
 
     def _update_rangers(self) -> None:
         if self._fans_dirty:
@@ -583,15 +663,14 @@ class World:
         else:
             out = self._scan_out.copy()  # readings of sensors not due keep their old arrays
             out[np.repeat(due, f["n"])] = ranges
-        out.flags.writeable = False  # readings are views into this tick's array
+        out.flags.writeable = False
         self._scan_out = out
+        vals = out if self._reduce is None else segment_min(out, *self._reduce)
+        vals.flags.writeable = False  # readings are views into this tick's array
         t = self.time
-        for m, ri, first_fan, off, total, k, per in self._ranger_slices:
-            if not due[first_fan]:
-                continue
-            seg = out[off : off + total]
-            vals = seg if per == total else seg.reshape(k, per).min(axis=1)
-            m.readings[ri] = RangerReading(vals, t, m.rangers[ri])
+        for m, ri, first_fan, r0, count in self._ranger_slices:
+            if due[first_fan]:
+                m.readings[ri] = RangerReading(vals[r0 : r0 + count], t, m.rangers[ri])
 
     # ------------------------------------------------------------------ blobfinders
     def _update_blobfinders(self) -> None:
@@ -730,8 +809,8 @@ class World:
                     between = o
         g.inner_beam, g.outer_beam = inner, outer
         if g.paddles in ("opening", "closing"):
-            g.progress += dt
-            if g.progress >= spec.paddle_time - 1e-9:
+            g.paddle_progress += dt
+            if g.paddle_progress >= spec.paddle_time - 1e-9:
                 if g.paddles == "closing":
                     g.paddles = "closed"
                     if between is not None and between.carried_by is None and g.carrying is None:
@@ -741,8 +820,8 @@ class World:
                     if g.carrying:
                         self._release(self._models[g.carrying])
         if g.lift in ("raising", "lowering"):
-            g.progress += dt
-            if g.progress >= spec.lift_time - 1e-9:
+            g.lift_progress += dt
+            if g.lift_progress >= spec.lift_time - 1e-9:
                 g.lift = "up" if g.lift == "raising" else "down"
         if g.carrying:
             o = self._models.get(g.carrying)
@@ -760,6 +839,7 @@ class World:
         if o.in_space:
             self.space.remove(o.shape, o.body)
             o.in_space = False
+            self._bodies_dirty = True
 
     def _release(self, o: _Model) -> None:
         holder = self._models.get(o.carried_by or "")
@@ -773,6 +853,7 @@ class World:
             o.body.angular_velocity = 0.0
             self.space.add(o.body, o.shape)
             o.in_space = True
+            self._bodies_dirty = True
 
     # ------------------------------------------------------------------ summary
     def describe(self) -> dict:

@@ -304,6 +304,44 @@ def test_closing_on_nothing_carries_nothing(tmp_path):
         w.gripper_command("r0", "squeeze")
 
 
+def _finish_times(w: World, steps: int) -> dict[str, float]:
+    """Step and note the simulated time at which the gripper first shows each state."""
+    seen: dict[str, float] = {}
+    for _ in range(steps):
+        w.step()
+        st = w.gripper("r0")
+        seen.setdefault(st.paddles, st.time)
+        seen.setdefault(st.lift, st.time)
+    return seen
+
+
+def test_paddles_and_lift_move_on_their_own_clocks(tmp_path):
+    g = GripperSpec(paddle_time=0.6, lift_time=1.0)
+    w = world(tmp_path, [robot(grippers=[g])])
+    # Started together: each finishes after its own duration.
+    w.gripper_command("r0", "close")
+    w.gripper_command("r0", "up")
+    seen = _finish_times(w, 15)
+    assert seen["closed"] == pytest.approx(0.6)
+    assert seen["up"] == pytest.approx(1.0)
+    # Started apart: a paddle command during a lift motion neither restarts nor hurries the lift.
+    w.gripper_command("r0", "down")
+    w.step(5)
+    w.gripper_command("r0", "open")
+    start = w.time
+    seen = _finish_times(w, 15)
+    assert seen["down"] == pytest.approx(start + 0.5)
+    assert seen["open"] == pytest.approx(start + 0.6)
+    # And the other way round: a lift command during a paddle motion.
+    w.gripper_command("r0", "close")
+    w.step(3)
+    w.gripper_command("r0", "up")
+    start = w.time
+    seen = _finish_times(w, 15)
+    assert seen["closed"] == pytest.approx(start + 0.3)
+    assert seen["up"] == pytest.approx(start + 1.0)
+
+
 # ---------------------------------------------------------------- simulation interface
 def test_set_get_pose_add_remove_pause_reset(tmp_path):
     w = world(tmp_path, [robot(rangers=[laser()])])
@@ -330,6 +368,40 @@ def test_set_get_pose_add_remove_pause_reset(tmp_path):
     assert w.time > t
     w.reset()
     assert w.time == 0.0 and w.get_pose("r0") == pytest.approx((0.0, 0.0, 0.0)) and "proxy" not in w.model_names
+
+
+def test_each_robot_drives_by_its_own_command_as_models_come_and_go(tmp_path):
+    """Robots are driven in one batched pass over the physics bodies; removing, adding and
+    picking up models reorders those bodies, and every robot must still follow its own command."""
+    g = GripperSpec(paddle_time=0.1)
+    models = [
+        robot("a", (-3.0, -2.0, 0.0), max_accel=(100.0, 100.0)),
+        robot("b", (-3.0, 0.0, 0.0), max_accel=(100.0, 100.0)),
+        blob("blob0", (3.23, 2.0, 0.0)),
+        robot("c", (3.0, 2.0, 0.0), grippers=[g], max_accel=(100.0, 100.0)),
+    ]
+    w = world(tmp_path, models)
+    w.remove_model("b")  # the body list is reordered
+    w.add_model(robot("d", (-3.0, 2.0, math.pi / 2), max_accel=(100.0, 100.0)))
+    w.gripper_command("c", "close")
+    w.step(2)
+    assert w.gripper("c").carrying == "blob0"  # the blob's body has left the space
+    cmds = {"a": (0.5, 0.0), "c": (0.0, -0.4), "d": (0.3, 0.6)}
+    start = {n: w.get_pose(n) for n in cmds}
+    for n, (v, om) in cmds.items():
+        w.set_velocity(n, v, om)
+    t = 2.0
+    w.step(int(round(t / w.spec.interval_sim)))
+    for n, (v, om) in cmds.items():
+        x0, y0, th0 = start[n]
+        if om:
+            dx = v / om * (math.sin(th0 + om * t) - math.sin(th0))
+            dy = -v / om * (math.cos(th0 + om * t) - math.cos(th0))
+        else:
+            dx, dy = v * t * math.cos(th0), v * t * math.sin(th0)
+        x, y, th = w.get_pose(n)
+        assert (x, y) == pytest.approx((x0 + dx, y0 + dy), abs=1e-6), n
+        assert math.remainder(th - th0 - om * t, 2 * math.pi) == pytest.approx(0.0, abs=1e-9), n
 
 
 def test_errors_name_the_model_and_the_fix(tmp_path):
