@@ -96,6 +96,8 @@ def sim_config(
     """
     from rsal.keys import DeviceAddr, parse_device
 
+    from .nav import profile
+
     def block(name, node, provides, requires=(), **params):
         return DriverConfig(
             name,
@@ -148,21 +150,19 @@ def sim_config(
                     [f"odometry::{name}:position2d:0", rng, "sim:map:0"],
                     init_pose=[x, y, math.degrees(a)],
                     init_pose_var=[0.05, 0.05, math.degrees(math.radians(5) ** 2)],
-                    pf_min_samples=200,
-                    pf_max_samples=2000,
-                    laser_max_beams=30,
+                    **profile.AMCL,
                 )
             )
-            drivers.append(block(nav, name, [("position2d", 1)], [f"{name}:position2d:0", rng]))
+            # The local planner's goal tolerances must be tighter than wavefront's (thesis A.3: "set this
+            # to be GREATER than the corresponding threshold of the underlying position device").
+            drivers.append(block(nav, name, [("position2d", 1)], [f"{name}:position2d:0", rng], **profile.LOCAL[nav]))
             drivers.append(
                 block(
                     "wavefront",
                     name,
                     [("planner", 0)],
                     [f"output::{name}:position2d:1", f"input::{name}:position2d:2", "sim:map:0"],
-                    safety_dist=0.15,
-                    distance_epsilon=0.4,
-                    angle_epsilon=10.0,
+                    **profile.WAVEFRONT,
                 )
             )
     return ServerConfig(node="sim", drivers=drivers, source=source)
@@ -236,7 +236,7 @@ def register_sim(sub) -> None:
     p.add_argument("--no-map", action="store_true", help="do not serve the floorplan as sim:map:0")
     p.add_argument(
         "--nav",
-        choices=("vfh", "nd", "snd"),
+        choices=("vfh", "nd", "snd"),  # mrs_bridge.nav.profile.LOCAL_PLANNERS
         help="add the navigation stack per robot: amcl, this local planner and wavefront (rsal goto)",
     )
     p.add_argument(

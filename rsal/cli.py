@@ -73,16 +73,51 @@ def _cmd_ls(args: argparse.Namespace) -> int:
     return 0
 
 
+def _follow(args: argparse.Namespace, addr: str, node, planner, fut, t0: float) -> int:
+    """Print progress lines until the goal's future is done (0); 1 after one error line when the
+    planner is lost or ``--timeout`` runs out (the robot is then stopped)."""
+    import math
+
+    from .msgs import RpcError
+
+    last_print = 0.0
+    while not fut.done():
+        now = time.monotonic()
+        if not node.is_alive(addr):
+            print(f"rsal goto: {addr}: the planner was lost (its server stopped?)", file=sys.stderr)
+            return 1
+        if now - t0 > args.timeout:
+            try:
+                planner.stop()
+                print(f"rsal goto: {addr}: not there after {args.timeout:g} s; stopped", file=sys.stderr)
+            except RpcError as e:
+                print(f"rsal goto: {addr}: not there after {args.timeout:g} s; stop failed: {e}", file=sys.stderr)
+            return 1
+        if now - last_print >= args.progress:
+            last_print = now
+            m = planner.latest
+            if m is not None:
+                d = math.hypot(m.pose[0] - args.x, m.pose[1] - args.y)
+                print(
+                    f"[goto] {now - t0:5.1f} s  pose ({m.pose[0]:.2f}, {m.pose[1]:.2f})  {d:.2f} m to go  "
+                    f"waypoint {m.waypoint_index}/{max(m.waypoint_count - 1, 0)}  {m.status}",
+                    flush=True,
+                )
+        time.sleep(0.05)
+    return 0
+
+
 def _cmd_goto(args: argparse.Namespace) -> int:
     import math
 
     from .client import Fabric
     from .data import Position
-    from .msgs import RpcError
+    from .msgs import ErrorCode, RpcError
 
     addr = f"{args.node}:planner:{args.index}"
     with Fabric.connect(TransportArgs.from_namespace(args)) as fab:
         node = fab.node(addr)
+        deadline = time.monotonic() + args.wait
         try:
             node.wait_for(addr, timeout=args.wait)
         except TimeoutError:
@@ -94,30 +129,28 @@ def _cmd_goto(args: argparse.Namespace) -> int:
             return 1
         planner = fab.device(addr)
         goal = Position(args.x, args.y, math.radians(args.yaw))
-        fut = planner.set_goal(goal, timeout=10.0)
-        if fut.done() and fut.exception() is not None:
-            print(f"rsal goto: {addr}: {fut.exception()}", file=sys.stderr)
+        while True:
+            fut = planner.set_goal(goal, timeout=10.0)
+            err = fut.exception() if fut.done() else None
+            # A planner that has just started answers "unavailable" until its map and a localized
+            # pose are in: ask again until --wait runs out.
+            if not (isinstance(err, RpcError) and err.code == ErrorCode.UNAVAILABLE and time.monotonic() < deadline):
+                break
+            time.sleep(0.2)
+        if err is not None:
+            print(f"rsal goto: {addr}: {err}", file=sys.stderr)
             return 1
         print(f"[goto] {addr}: goal ({args.x:g}, {args.y:g}, {args.yaw:g} deg), {planner.waypoint_count} waypoints")
         t0 = time.monotonic()
-        last_print = 0.0
-        while not fut.done():
-            now = time.monotonic()
-            if now - t0 > args.timeout:
-                planner.stop()
-                print(f"rsal goto: {addr}: not there after {args.timeout:g} s; stopped", file=sys.stderr)
+        try:
+            if _follow(args, addr, node, planner, fut, t0):
                 return 1
-            if now - last_print >= args.progress:
-                last_print = now
-                m = planner.latest
-                if m is not None:
-                    d = math.hypot(m.pose[0] - args.x, m.pose[1] - args.y)
-                    print(
-                        f"[goto] {now - t0:5.1f} s  pose ({m.pose[0]:.2f}, {m.pose[1]:.2f})  {d:.2f} m to go  "
-                        f"waypoint {m.waypoint_index}/{max(m.waypoint_count - 1, 0)}  {m.status}",
-                        flush=True,
-                    )
-            time.sleep(0.05)
+        except KeyboardInterrupt:  # the goal dies with the command: stop the robot, then exit 130
+            try:
+                planner.stop()
+            except RpcError:
+                pass
+            raise
         try:
             fut.result()
         except RpcError as e:
@@ -146,7 +179,9 @@ def build_parser() -> argparse.ArgumentParser:
     go.add_argument("yaw", type=float, nargs="?", default=0.0, help="goal heading (degrees, default 0)")
     go.add_argument("--index", type=int, default=0, help="planner index (default 0)")
     go.add_argument("--timeout", type=float, default=300.0, help="give up after this many seconds (default 300)")
-    go.add_argument("--wait", type=float, default=10.0, help="seconds to wait for the planner to appear")
+    go.add_argument(
+        "--wait", type=float, default=10.0, help="seconds to wait for the planner to appear and be ready (default 10)"
+    )
     go.add_argument("--progress", type=float, default=2.0, help="seconds between progress lines (default 2)")
     add_transport_args(go)
     go.set_defaults(func=_cmd_goto)

@@ -223,6 +223,11 @@ class Position2d(Device):
     def stop(self) -> None:
         self.send(msgs.VelocityCmd(0.0, 0.0))
 
+    def goto(self, goal: Position) -> None:
+        """Drive to ``goal`` in this device's frame: for a local planner's position2d (vfh, nd, snd),
+        which reports ``{"event": "done"}`` on arrival; a plain base rejects it."""
+        self.send(msgs.GoalCmd(goal.as_tuple()))
+
     def set_odometry(self, pose: Position) -> dict:
         return self.rpc("set_odom", pose=list(pose.as_tuple()))
 
@@ -402,6 +407,8 @@ class Localize(Device):
         m = self.latest
         return Position(*m.pose) if m is not None else None
 
+    position = property(get_position)
+
     def covariance(self) -> np.ndarray | None:
         m = self.latest
         return np.asarray(m.cov, dtype=float).reshape(3, 3) if m is not None else None
@@ -410,9 +417,10 @@ class Localize(Device):
         m = self.latest
         return list(m.hypotheses) if m is not None else []
 
-    def set_position(self, pose: Position, cov=(0.25, 0.25, math.radians(15) ** 2), timeout: float = 5.0) -> dict:
+    def set_position(self, pose: Position, cov=(0.25, 0.25, 0.0685), timeout: float = 5.0) -> dict:
         """Re-initialise the filter around ``pose``; ``cov`` is a 3x3 matrix or its diagonal
-        (m², m², rad²). The thesis's way to help a robot that cannot find itself (3.4.2)."""
+        (m², m², rad²; default 0.5 m and 15 deg standard deviations). The thesis's way to help a robot
+        that cannot find itself (3.4.2)."""
         c = np.asarray(cov, dtype=float)
         if c.shape == (3,):
             c = np.diag(c)

@@ -1,4 +1,4 @@
-"""Robots of the RSAL layer (thesis 3.6.2.2): ``Robot``, ``Pioneer`` and ``ExploreRobot``.
+"""Robots of the RSAL layer (thesis 3.6.2.2): ``Robot``, ``Pioneer``, ``ExploreRobot``, ``NavRobot``.
 
 A :class:`Robot` is made from a list of device proxies, anywhere on the fabric; it needs a
 ``position2d`` and at least one ranger (laser or sonar), and uses what else it is given
@@ -19,14 +19,15 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterable
+from concurrent.futures import Future
 
 import numpy as np
 
 from .behaviours import BehaviourParams, Subsumption, beam_points, fuse
 from .data import BlobfinderBlob, Position
-from .devices import Blobfinder, Device, Gripper, Laser, Position2d, Ranger, Simulation, Sonar
+from .devices import Blobfinder, Device, Gripper, Laser, Planner, Position2d, Ranger, Simulation, Sonar
 
-__all__ = ["Robot", "Pioneer", "ExploreRobot", "RobotError"]
+__all__ = ["Robot", "Pioneer", "ExploreRobot", "NavRobot", "RobotError"]
 
 log = logging.getLogger(__name__)
 
@@ -224,6 +225,43 @@ class ExploreRobot(Pioneer):
             self.found.append(found)
             for fn in self._blob_listeners:
                 fn(found)
+
+
+class NavRobot(Robot):
+    """A robot that moves by goals on the map (thesis 3.6.2.2): a ``planner`` (wavefront) plans and
+    drives through the local planner, a ``localize`` (amcl) says where it is.
+
+    :meth:`goto` returns a future that resolves to ``"done"`` or raises
+    :class:`~rsal.msgs.RpcError` (``not_found``: invalid goal; ``unavailable``: aborted or superseded).
+    """
+
+    def __init__(self, devices: Iterable[Device], **kw):
+        devs = list(devices)
+        super().__init__(devs, **kw)
+        self.planner: Planner | None = next((d for d in devs if isinstance(d, Planner)), None)
+        if self.planner is None:
+            raise RobotError(
+                f"robot {self.name!r} needs a planner device to move by goals (e.g. 'rsal sim WORLD --nav vfh')"
+            )
+        base = [d for d in devs if isinstance(d, Position2d)]
+        self.position2d = min(base, key=lambda d: d.index)  # the base itself, for stop()
+
+    def goto(self, goal: Position, timeout: float = 5.0) -> Future:
+        self.goal = goal
+        return self.planner.set_goal(goal, timeout=timeout)
+
+    def add_is_done_listener(self, fn: Callable[[str], None]) -> None:
+        self.planner.add_is_done_listener(fn)
+
+    @property
+    def is_done(self) -> bool:
+        return self.planner.status == "done"
+
+    def stop(self) -> None:
+        try:
+            self.planner.stop()
+        finally:
+            self.position2d.stop()
 
 
 def robot_devices(node, name: str, *, timeout: float = 10.0) -> list[Device]:

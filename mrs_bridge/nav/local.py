@@ -1,0 +1,662 @@
+"""Local planners: the one interface of the VFH, ND and SND obstacle avoiders and what they share.
+
+Player's ``vfh``, ``nd`` and ``snd`` drivers (thesis 3.4.1, appendix A.3) take a goal pose on their
+``position2d`` interface and drive the underlying base there while avoiding what the laser (and
+sonar) sees. Here each algorithm is a plain library object behind :class:`LocalPlanner`; a driver
+binds it to the device server::
+
+    planner = VFH({"max_speed": 0.4, "safety_dist_1ms": 0.4}, geometry=(0.44, 0.38))
+    planner.set_goal((x, y, yaw))                    # in the base's odometry frame
+    v, w = planner.step(pose, speed, points, dt)     # once per scan; points in the robot frame
+
+Algorithms (one module each): :mod:`~mrs_bridge.nav.vfh` -- Borenstein & Koren 1991, "The Vector
+Field Histogram", with Ulrich & Borenstein 1998, "VFH+"; :mod:`~mrs_bridge.nav.nd` -- Minguez &
+Montano 2004, "Nearness Diagram (ND) Navigation"; :mod:`~mrs_bridge.nav.snd` -- Durham & Bullo
+2008, "Smooth Nearness-Diagram Navigation".
+
+What every planner shares, and therefore lives here:
+
+* **Parameters** by Player's names and in Player's configuration units (lengths m, speeds m/s,
+  angles and turn rates in degrees and deg/s), so a Player ``.cfg`` block maps one to one. They are
+  validated once: an unknown name is a ``ValueError`` naming the closest valid one, a bad value one
+  naming the key and the expected range.
+* **Goal handling**: drive until the position is within the position tolerance, then turn in place
+  to the goal yaw until within the angle tolerance; then the status is ``done`` and the command
+  zero. Near the goal the speed is capped so the robot can stop on it.
+* **A motion guard** every command passes: the free length of the commanded arc for the robot's
+  disc (``robot_radius``) grown by the planner's safety distance is computed for all obstacle
+  points at once, and the forward speed is cut to what can still stop in that length within one
+  control period (:func:`free_path_length`). No command moves the robot towards an obstacle that
+  is already inside the safety distance.
+* **Limits**: ``|v|`` and ``|w|`` within the planner's maximum speed and turn rate; speeding up by
+  at most the planner's acceleration per second (slowing down is never limited: a planner must
+  be able to stop).
+* **Stuck detection and escape**: no free direction for longer than the planner's blocked time,
+  or no progress (moved less than a distance and turned less than an angle within a time), puts
+  the planner into status ``blocked`` and starts an escape: back up at the escape speed while
+  turning towards the more open side for the escape time, then plan again (and escape again,
+  turning the other way, while still blocked).
+* **Polar helpers** over the obstacle points: sector minimum ranges (:func:`polar_ranges`) and a
+  swept-corridor test (:func:`corridor_clear`), all vectorised with numpy over the points.
+
+Units inside the objects are SI (metres, radians, seconds).
+"""
+
+from __future__ import annotations
+
+import difflib
+import logging
+import math
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+from numbers import Real
+from typing import Any, NamedTuple
+
+import numpy as np
+
+__all__ = [
+    "KEEP_RIGHT",
+    "Command",
+    "LocalPlanner",
+    "Param",
+    "ScanMemory",
+    "Status",
+    "corridor_clear",
+    "free_path_length",
+    "polar_ranges",
+    "wrap",
+]
+
+log = logging.getLogger(__name__)
+
+TWO_PI = 2.0 * math.pi
+_TURN_GAIN = 1.5  # 1/s: in-place turn rate per radian of yaw error at the goal
+KEEP_RIGHT = 0.1  # rad: a way round on the left must be this much nearer the goal to win (traffic rule)
+_GUARD_FRACTIONS = np.array([1.0, 0.8, 0.6, 0.45, 0.3, 0.2, 0.1])  # speeds the guard tries, of the planned one
+_GUARD_HORIZON = 4.0  # m: default look-ahead of free_path_length
+_OPEN_RANGE = 3.0  # m: ranges counted when judging which side is more open
+_REAR_HALF_WIDTH = math.radians(45.0)  # backing up needs this cone behind seen within the memory's time
+_SLIDE_DIRS = np.radians(np.arange(-120.0, 121.0, 10.0))  # headings tried when the guard stops the robot
+_SLIDE_FREE = 0.5  # m of straight free path that makes a heading worth turning to
+
+
+class Status(StrEnum):
+    """A planner's state. Compares equal to its string value (``status == "done"``)."""
+
+    IDLE = "idle"  # no goal (after construction or stop())
+    DRIVING = "driving"  # on the way to the goal
+    DONE = "done"  # goal position and yaw reached; the command is zero
+    BLOCKED = "blocked"  # no free direction or no progress for too long; escaping
+
+
+class Command(NamedTuple):
+    """A velocity command for a differential drive: forward speed (m/s) and turn rate (rad/s)."""
+
+    v: float
+    w: float
+
+
+STOP = Command(0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Param:
+    """One configuration parameter: its default, valid range and unit (Player's units)."""
+
+    default: float | tuple[float, ...] | None  # None: see ``same_as``, or derived by the planner
+    lo: float | tuple[float, ...]
+    hi: float | tuple[float, ...]
+    unit: str = ""
+    doc: str = ""
+    size: int = 1  # 1: a number; k > 1: a list of k numbers
+    integer: bool = False
+    same_as: str | None = None  # the default is this (earlier) parameter's value
+
+    def expected(self) -> str:
+        kind = "an integer" if self.integer else "a number"
+        if self.size == 1:
+            return f"{kind} in [{_num(self.lo)}, {_num(self.hi)}]" + (f" {self.unit}" if self.unit else "")
+        lo = self.lo if isinstance(self.lo, tuple) else (self.lo,) * self.size
+        hi = self.hi if isinstance(self.hi, tuple) else (self.hi,) * self.size
+        box = " x ".join(f"[{_num(a)}, {_num(b)}]" for a, b in zip(lo, hi, strict=True))
+        return f"a list of {self.size} numbers in {box}" + (f" ({self.unit})" if self.unit else "")
+
+
+def _num(x: float) -> str:
+    return "inf" if x == math.inf else f"{x:g}"
+
+
+# ----------------------------------------------------------------------------------------------- helpers
+def wrap(a):
+    """Angles to [-pi, pi) (scalars or arrays)."""
+    if isinstance(a, float | int):
+        return (a + math.pi) % TWO_PI - math.pi
+    return (np.asarray(a) + math.pi) % TWO_PI - math.pi
+
+
+def as_points(points) -> np.ndarray:
+    """Obstacle points as a float64 ``(n, 2)`` array; rows with a non-finite value are dropped."""
+    if points is None:
+        return np.empty((0, 2))
+    p = np.asarray(points, dtype=np.float64)
+    if p.size == 0:
+        return np.empty((0, 2))
+    if p.ndim != 2 or p.shape[1] != 2:
+        raise ValueError(f"points must be an (n, 2) array of robot-frame x, y in metres, not shape {p.shape}")
+    ok = np.isfinite(p).all(axis=1)
+    return p if ok.all() else p[ok]
+
+
+def polar_ranges(points: np.ndarray, n_sectors: int, *, empty: float = math.inf) -> np.ndarray:
+    """Minimum range of the points in each of ``n_sectors`` equal sectors around the robot.
+
+    Sector ``k`` is centred on the direction ``k * 2 pi / n_sectors`` (robot frame, counter-
+    clockwise from straight ahead). Sectors without a point get ``empty``.
+    """
+    out = np.full(n_sectors, empty, dtype=np.float64)
+    if len(points) == 0:
+        return out
+    r = np.hypot(points[:, 0], points[:, 1])
+    k = np.rint(np.arctan2(points[:, 1], points[:, 0]) * (n_sectors / TWO_PI)).astype(np.int64) % n_sectors
+    np.minimum.at(out, k, r)
+    return out
+
+
+def corridor_clear(points: np.ndarray, angle: float, length: float, half_width: float) -> bool:
+    """True if no point lies in the rectangle swept by a disc of radius ``half_width`` moving
+    ``length`` metres from the robot's centre in direction ``angle`` (robot frame)."""
+    if len(points) == 0:
+        return True
+    c, s = math.cos(angle), math.sin(angle)
+    along = points[:, 0] * c + points[:, 1] * s
+    across = -points[:, 0] * s + points[:, 1] * c
+    near = np.abs(across) < half_width
+    reach = along - np.sqrt(np.maximum(half_width * half_width - across * across, 0.0))
+    return not bool(np.any(near & (along > 0.0) & (reach < length)))
+
+
+def free_path_length(points: np.ndarray, curvature, radius: float, horizon: float = _GUARD_HORIZON) -> np.ndarray:
+    """How far (m, along the path of the robot's centre) the robot can drive forward on arcs of
+    the given curvatures (1/m, positive to the left; an array of ``K``) before a disc of ``radius``
+    around its centre touches any of the points. ``horizon`` where nothing is in the way within it.
+
+    Points already inside the disc and ahead of the centre (``x > 0``) stop the robot at once (0);
+    ones inside it and behind are left behind and ignored. One vectorised pass over ``K x n``.
+    """
+    kap = np.atleast_1d(np.asarray(curvature, dtype=np.float64))
+    out = np.full(kap.shape, float(horizon))
+    if len(points) == 0:
+        return out
+    px, py = points[:, 0], points[:, 1]
+    r2 = radius * radius
+    d2 = px * px + py * py
+    if np.any((d2 < r2) & (px > 0.0)):
+        return np.zeros(kap.shape)
+    # Only points the disc can reach within the horizon matter (and not those already inside it,
+    # which are behind the centre and left behind).
+    reach_r = horizon + radius
+    keep = (d2 >= r2) & (d2 < reach_r * reach_r)
+    if not keep.any():
+        return out
+    px, py = px[keep], py[keep]
+    straight = np.abs(kap) < 1e-6
+    if straight.any():
+        hit = (np.abs(py) < radius) & (px > 0.0)
+        if hit.any():
+            d = px[hit] - np.sqrt(r2 - py[hit] ** 2)
+            out[straight] = min(float(horizon), float(d.min()))
+    turn = ~straight
+    if turn.any():
+        k = kap[turn][:, None]
+        rho = 1.0 / k  # signed turning radius; centre of the turn at (0, rho)
+        arho = np.abs(rho)
+        qy = py[None, :] - rho
+        q = np.hypot(px[None, :], qy)
+        reach = np.abs(q - arho) < radius  # the centre's circle passes within `radius` of the point
+        if reach.any():
+            # The disc touches the point where the centre is `radius` from it: at +-delta around the
+            # point's own angle about the turn centre (law of cosines).
+            cos_d = (arho * arho + q * q - r2) / (2.0 * arho * np.maximum(q, 1e-12))
+            delta = np.arccos(np.clip(cos_d, -1.0, 1.0))
+            # Angle travelled (in the direction of the turn) from the start to the point's angle.
+            ang = np.arctan2(qy, px[None, :])
+            start = np.where(k > 0, -0.5 * math.pi, 0.5 * math.pi)
+            travel = np.where(k > 0, ang - start, start - ang) % TWO_PI
+            contact = np.clip(travel - delta, 0.0, None)
+            length = np.where(reach & (contact <= math.pi), arho * contact, np.inf)
+            out[turn] = np.minimum(float(horizon), length.min(axis=1))
+    return out
+
+
+def _floats(value, n: int, what: str) -> tuple[float, ...]:
+    try:
+        vals = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be {n} numbers, not {value!r}") from None
+    if len(vals) != n or not all(math.isfinite(v) for v in vals):
+        raise ValueError(f"{what} must be {n} finite numbers, not {value!r}")
+    return vals
+
+
+class ScanMemory:
+    """Recent obstacle points, kept in the odometry frame, for the directions the sensors do not see.
+
+    A 240-degree laser is blind behind the robot: a planner that turns in place next to an obstacle
+    forgets it, and a robot backing up cannot see what it backs into. The memory keeps the points
+    of the last ``keep`` seconds within ``reach`` metres and learns the sensors' coverage from where
+    hits appear (a direction without a hit for ``coverage_time`` seconds counts as unseen). Recalled
+    points lie only in unseen directions, so the live scan always wins where there is one.
+    """
+
+    def __init__(
+        self,
+        keep: float = 3.0,
+        reach: float = 2.0,
+        coverage_time: float = 10.0,
+        interval: float = 0.3,
+        decimate: int = 3,
+        sectors: int = 72,
+    ):
+        self.keep, self.reach, self.coverage_time = keep, reach, coverage_time
+        self.interval, self.decimate, self.sectors = interval, decimate, sectors  # every `interval` s, every
+        # `decimate`-th point of a scan is stored
+        self.clear()
+
+    def clear(self) -> None:
+        self._scans: deque[tuple[float, np.ndarray]] = deque()
+        self._seen = np.full(self.sectors, -math.inf)  # robot frame: last hit per direction
+        self._looked = np.full(self.sectors, -math.inf)  # odometry frame: last time in view
+        self._stored = -math.inf
+
+    def _sector(self, pts: np.ndarray) -> np.ndarray:
+        a = np.arctan2(pts[:, 1], pts[:, 0])
+        return np.floor((a + math.pi) * (self.sectors / TWO_PI)).astype(np.int64) % self.sectors
+
+    def update(self, t: float, pose: tuple[float, float, float], pts: np.ndarray) -> None:
+        """Add a scan (robot-frame points) taken at time ``t`` from odometry pose ``pose``."""
+        while self._scans and self._scans[0][0] < t - self.keep:
+            self._scans.popleft()
+        if t - self._stored < self.interval or not len(pts):
+            return
+        self._stored = t
+        self._seen[self._sector(pts)] = t
+        covered = np.flatnonzero(self._seen >= t - self.coverage_time)
+        self._looked[(covered + int(round(pose[2] * self.sectors / TWO_PI))) % self.sectors] = t
+        few = pts[:: self.decimate]
+        near = few[(few[:, 0] ** 2 + few[:, 1] ** 2) < self.reach * self.reach]
+        if len(near):
+            c, s = math.cos(pose[2]), math.sin(pose[2])
+            xy = np.column_stack((pose[0] + c * near[:, 0] - s * near[:, 1], pose[1] + s * near[:, 0] + c * near[:, 1]))
+            self._scans.append((t, xy))
+
+    def looked(self, t: float, pose: tuple[float, float, float], direction: float, half_width: float) -> bool:
+        """Whether every direction within ``half_width`` of ``direction`` (robot frame at ``pose``)
+        was in the sensors' view in the last ``keep`` seconds -- so the memory knows what is there."""
+        w = self.sectors / TWO_PI
+        lo = int(math.floor((pose[2] + direction - half_width + math.pi) * w))
+        hi = int(math.ceil((pose[2] + direction + half_width + math.pi) * w))
+        idx = np.arange(lo, hi + 1) % self.sectors
+        return bool(np.all(self._looked[idx] >= t - self.keep))
+
+    def recall(self, t: float, pose: tuple[float, float, float]) -> np.ndarray:
+        """Remembered points (robot frame at ``pose``) in the directions not covered by the sensors."""
+        unseen = self._seen < t - self.coverage_time
+        if not self._scans or not unseen.any():
+            return np.empty((0, 2))
+        xy = np.concatenate([s for _, s in self._scans]) if len(self._scans) > 1 else self._scans[0][1]
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        dx, dy = xy[:, 0] - pose[0], xy[:, 1] - pose[1]
+        local = np.column_stack((c * dx + s * dy, -s * dx + c * dy))
+        local = local[(local[:, 0] ** 2 + local[:, 1] ** 2) < self.reach * self.reach]
+        if not len(local):
+            return local
+        return local[unseen[self._sector(local)]]
+
+
+# ----------------------------------------------------------------------------------------------- base class
+class LocalPlanner:
+    """A local planner: drives a differential-drive base to a goal pose around what it sees.
+
+    ``params`` are Player's configuration options of the algorithm's driver (see the subclass's
+    :attr:`PARAMS`); ``geometry`` is the base's ``(length, width)`` in metres from its position2d
+    geometry, used for the robot's radius where the parameters do not give one (the radius is half
+    the diagonal: the disc that holds the base in every heading).
+    """
+
+    name: str = "local"
+    PARAMS: dict[str, Param] = {}
+
+    # Set by each subclass's _configure (SI units).
+    robot_radius: float
+    v_max: float  # m/s
+    w_max: float  # rad/s
+    pos_tol: float  # m
+    ang_tol: float  # rad
+    turn_min: float  # rad/s, least turn rate when turning in place to the goal yaw
+    accel: float | None  # m/s^2, limit on speeding up (None: none)
+    brake: float  # m/s^2, deceleration the guard counts on
+    escape_speed: float  # m/s, backwards
+    escape_turnrate: float  # rad/s
+    escape_time: float  # s
+    blocked_after: float  # s without a free direction before status "blocked"
+    stuck_time: float  # s: no progress in this time is stuck ...
+    stuck_dist: float  # m: ... progress is moving this far ...
+    stuck_angle: float  # rad: ... or turning this much
+    rotate_stuck_time: float  # s turning in place without moving before stuck
+    heading_wanted: float = 0.0  # rad, robot frame: the direction the algorithm chose last cycle
+
+    def __init__(self, params: Mapping[str, Any] | None = None, *, geometry: Sequence[float] | None = None):
+        self.params: dict[str, Any] = self._resolve(params)
+        self.geometry: tuple[float, float] | None = None
+        if geometry is not None:
+            g = _floats(geometry, 2, f"{self.name}: geometry (length, width)")
+            if not (g[0] > 0 and g[1] > 0):
+                raise ValueError(f"{self.name}: geometry (length, width) must be positive metres, not {geometry!r}")
+            self.geometry = (g[0], g[1])
+        self._configure(self.params)
+        self.goal: tuple[float, float, float] | None = None
+        self.command = STOP
+        self.status = Status.IDLE
+        self.memory = ScanMemory()
+        self._clock = 0.0  # s, summed dt (the memory's time base, never reset)
+        self._pose = (0.0, 0.0, 0.0)
+        self._reset()
+
+    # ------------------------------------------------------------------ parameters
+    @classmethod
+    def defaults(cls) -> dict[str, Any]:
+        """The resolved default parameters (Player units)."""
+        return cls._resolve_dict(cls, {})
+
+    def _resolve(self, params: Mapping[str, Any] | None) -> dict[str, Any]:
+        if params is None:
+            params = {}
+        if not isinstance(params, Mapping):
+            raise ValueError(f"{self.name}: parameters must be a mapping of Player option names, not {params!r}")
+        return self._resolve_dict(type(self), params)
+
+    @staticmethod
+    def _resolve_dict(cls, params: Mapping[str, Any]) -> dict[str, Any]:
+        names = list(cls.PARAMS)
+        for key in params:
+            if key not in cls.PARAMS:
+                close = difflib.get_close_matches(str(key), names, n=1, cutoff=0.0)
+                hint = f"did you mean {close[0]!r}? " if close else ""
+                raise ValueError(f"{cls.name}: unknown parameter {key!r}; {hint}(valid: {', '.join(sorted(names))})")
+        out: dict[str, Any] = {}
+        for key, spec in cls.PARAMS.items():
+            if key in params:
+                out[key] = _check(cls.name, key, params[key], spec)
+            elif spec.same_as is not None:
+                out[key] = out[spec.same_as]
+            else:
+                out[key] = spec.default
+        return out
+
+    def _configure(self, p: dict[str, Any]) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _radius(self, default: float) -> float:
+        if self.geometry is not None:
+            return 0.5 * math.hypot(*self.geometry)
+        return default
+
+    def safety(self, speed: float) -> float:
+        """Safety distance (m) kept between the robot's disc and obstacles at ``speed`` m/s."""
+        return 0.0
+
+    # ------------------------------------------------------------------ interface
+    def set_goal(self, goal: Sequence[float]) -> None:
+        """Drive to ``(x, y, yaw)`` (m, m, rad) in the base's odometry frame."""
+        self.goal = _floats(goal, 3, f"{self.name}: goal (x, y, yaw)")  # type: ignore[assignment]
+        self.status = Status.DRIVING
+        self._reset()
+
+    def stop(self) -> None:
+        """Forget the goal: status ``idle``, commands zero."""
+        self.goal = None
+        self.status = Status.IDLE
+        self.command = STOP
+        self._reset()
+
+    def step(self, pose: Sequence[float], speed: Sequence[float], points, dt: float) -> Command:
+        """One control cycle: the ``(v, w)`` command for the base.
+
+        ``pose`` ``(x, y, yaw)`` in the odometry frame, ``speed`` the base's current ``(v, w)``,
+        ``points`` the obstacle points ``(n, 2)`` in the robot frame (metres, x forward, y left;
+        max-range readings already removed), ``dt`` seconds since the last step.
+        """
+        x, y, yaw = _floats(pose, 3, f"{self.name}: pose (x, y, yaw)")
+        v_now, w_now = _floats(speed, 2, f"{self.name}: speed (v, w)")
+        pts = as_points(points)
+        dt = float(dt)
+        if not (math.isfinite(dt) and dt >= 0.0):
+            raise ValueError(f"{self.name}: dt must be a non-negative number of seconds, not {dt!r}")
+        self._clock += dt
+        self._pose = (x, y, yaw)
+        remembered = self.memory.recall(self._clock, (x, y, yaw))
+        self.memory.update(self._clock, (x, y, yaw), pts)
+        if len(remembered):
+            pts = np.concatenate((pts, remembered))
+        if self.goal is None or self.status in (Status.IDLE, Status.DONE):
+            self.command = STOP
+            return STOP
+        self._t += dt
+        period = min(max(dt, 0.02), 0.5)  # the guard's reaction time
+        gx, gy, gyaw = self.goal
+        dx, dy = gx - x, gy - y
+        dist = math.hypot(dx, dy)
+        if dist <= self.pos_tol:
+            self._arrived = True
+        elif dist > 2.0 * self.pos_tol + 0.2:  # pushed away after arriving: drive back
+            self._arrived = False
+        if self._arrived:
+            err = wrap(gyaw - yaw)
+            if abs(err) <= self.ang_tol:
+                self.status = Status.DONE
+                self.command = STOP
+                return STOP
+            self.status = Status.DRIVING
+            self._progress_reset(x, y, yaw)
+            w = math.copysign(min(max(_TURN_GAIN * abs(err), self.turn_min), self.w_max), err)
+            v = 0.0
+        else:
+            c, s = math.cos(yaw), math.sin(yaw)
+            goal_r = (c * dx + s * dy, -s * dx + c * dy)
+            v, w = self._drive(goal_r, dist, pts, v_now, w_now, (x, y, yaw), dt, period)
+        self.command = self._limit(v, w, pts, v_now, dt, period)
+        return self.command
+
+    # ------------------------------------------------------------------ one cycle
+    def _plan(
+        self,
+        goal: tuple[float, float],
+        dist: float,
+        pts: np.ndarray,
+        speed: tuple[float, float],
+        pose: tuple[float, float, float],
+        dt: float,
+    ) -> tuple[float, float, bool]:  # pragma: no cover - abstract
+        """The algorithm: ``(v, w, free)`` towards the goal at ``goal`` (robot frame, ``dist`` m
+        away); ``free`` False when no direction is free (``v, w`` then say how to wait)."""
+        raise NotImplementedError
+
+    def _drive(self, goal_r, dist, pts, v_now, w_now, pose, dt, period) -> tuple[float, float]:
+        x, y, yaw = pose
+        if self._escape_left > 0.0:
+            self._escape_left -= dt
+            self.status = Status.BLOCKED
+            if self._escape_left <= 0.0:
+                self._progress_reset(x, y, yaw)
+            return self._escape_cmd
+        v, w, free = self._plan(goal_r, dist, pts, (v_now, w_now), pose, dt)
+        if free:
+            self._no_way = 0.0
+            self.status = Status.DRIVING
+        else:
+            self._no_way += dt
+            if self._no_way >= self.blocked_after:
+                self._no_way = 0.0
+                self._blocked(pts, "no free direction", pose)
+        if self._stuck(x, y, yaw):
+            self._blocked(pts, "no progress", pose)
+        if self._escape_left > 0.0:
+            return self._escape_cmd
+        # Approach: be able to stop on the goal (within half the tolerance).
+        v = min(v, math.sqrt(2.0 * self.brake * max(dist - 0.5 * self.pos_tol, 0.0)), 1.5 * dist)
+        return v, w
+
+    def _limit(self, v: float, w: float, pts: np.ndarray, v_now: float, dt: float, period: float) -> Command:
+        v = float(np.clip(v, -self.v_max, self.v_max))
+        w = float(np.clip(w, -self.w_max, self.w_max))
+        if self.accel is not None and abs(v) > abs(v_now):
+            step = self.accel * max(dt, 1e-3)
+            v = float(np.clip(v, v_now - step, v_now + step))
+        if v != 0.0:
+            wanted = v
+            v = self._guard(v, w, pts, v_now, period)
+            if v == 0.0 and wanted > 0.0:
+                w = self._slide(pts, w)
+        return Command(v, w)
+
+    def _slide(self, pts: np.ndarray, w: float) -> float:
+        """The guard stopped a forward command: turn on the spot towards the free direction
+        nearest the one the planner wanted, so that the robot slides round what stopped it."""
+        r = self.robot_radius + self.safety(0.0)
+        c, s = np.cos(_SLIDE_DIRS)[:, None], np.sin(_SLIDE_DIRS)[:, None]
+        along = pts[:, 0] * c + pts[:, 1] * s
+        across = -pts[:, 0] * s + pts[:, 1] * c
+        hit = (np.abs(across) < r) & (along > 0.0)
+        reach = np.where(hit, along - np.sqrt(np.maximum(r * r - across * across, 0.0)), np.inf)
+        length = reach.min(axis=1)
+        free = length >= _SLIDE_FREE
+        if not free.any():  # in a tight spot: any heading that frees a little more way than this one
+            free = length >= max(float(length[len(_SLIDE_DIRS) // 2]) + 0.1, 0.15)
+        if not free.any():
+            return w
+        cost = np.abs(_SLIDE_DIRS - self.heading_wanted)
+        if self._slide_dir is not None and self._clock - self._slide_at < 1.0:
+            # Keep sliding the way we started (in the odometry frame), so as not to dither.
+            cost = cost + 0.5 * np.abs(wrap(_SLIDE_DIRS + self._pose[2] - self._slide_dir))
+        phi = float(_SLIDE_DIRS[np.argmin(np.where(free, cost, np.inf))])
+        self._slide_dir, self._slide_at = float(wrap(phi + self._pose[2])), self._clock
+        if abs(phi) < 1e-9:
+            return 0.0
+        return math.copysign(min(max(_TURN_GAIN * abs(phi), self.turn_min), self.w_max), phi)
+
+    def _guard(self, v: float, w: float, pts: np.ndarray, v_now: float, period: float) -> float:
+        """Cut ``v`` so the robot can stop, within one control period plus braking, before its disc
+        grown by the safety distance touches an obstacle point on the arc it drives."""
+        sign = 1.0 if v > 0 else -1.0
+        if sign < 0 and not self.memory.looked(self._clock, self._pose, math.pi, _REAR_HALF_WIDTH):
+            return 0.0  # never back into space the sensors have not seen lately
+        if len(pts) == 0:
+            return v
+        p = pts if sign > 0 else pts * np.array([-1.0, 1.0])  # reversing: mirror, drive forwards
+        wf = w * sign
+        speeds = abs(v) * _GUARD_FRACTIONS
+        radius = self.robot_radius + self.safety(max(abs(v_now), abs(v)))
+        a = self.brake
+        horizon = abs(v) * period + v * v / (2.0 * a) + 0.05  # what stopping from |v| needs
+        free = free_path_length(p, wf / speeds, radius, horizon)
+        # The fastest speed that stops within `free`: travel one period, then brake.
+        vstop = a * (np.sqrt(period * period + 2.0 * free / a) - period)
+        ok = speeds <= vstop + 1e-9
+        if not ok.any():
+            return 0.0
+        return sign * float(speeds[np.argmax(ok)])
+
+    # ------------------------------------------------------------------ stuck and escape
+    def _reset(self) -> None:
+        self._t = 0.0
+        self._arrived = False
+        self._no_way = 0.0
+        self._escape_left = 0.0
+        self._escape_cmd = STOP
+        self._escape_side = 0.0
+        self._anchor: tuple[float, float, float, float] | None = None
+        self._moved_at = 0.0
+        self._slide_dir: float | None = None
+        self._slide_at = -math.inf
+        self._reset_algorithm()
+
+    def _reset_algorithm(self) -> None:
+        """Forget the algorithm's memory (a new goal or stop)."""
+
+    def _progress_reset(self, x: float, y: float, yaw: float) -> None:
+        self._anchor = (self._t, x, y, yaw)
+        self._moved_at = self._t
+
+    def _stuck(self, x: float, y: float, yaw: float) -> bool:
+        a = self._anchor
+        if a is None:
+            self._progress_reset(x, y, yaw)
+            return False
+        t0, x0, y0, yaw0 = a
+        moved = math.hypot(x - x0, y - y0)
+        if moved >= self.stuck_dist:
+            self._progress_reset(x, y, yaw)
+            return False
+        if abs(wrap(yaw - yaw0)) >= self.stuck_angle:
+            # Turning counts as progress for stuck_time, but not for ever (rotate_stuck_time).
+            self._anchor = (self._t, x0, y0, yaw)
+            return self._t - self._moved_at >= self.rotate_stuck_time
+        return self._t - t0 >= self.stuck_time or self._t - self._moved_at >= self.rotate_stuck_time
+
+    def _blocked(self, pts: np.ndarray, why: str, pose: tuple[float, float, float]) -> None:
+        repeat = self.status == Status.BLOCKED
+        self.status = Status.BLOCKED
+        self._progress_reset(*pose)
+        if self.escape_time <= 0.0 or (self.escape_speed <= 0.0 and self.escape_turnrate <= 0.0):
+            return
+        side = self._open_side(pts)
+        if repeat and self._escape_side != 0.0:
+            side = -self._escape_side  # the last escape did not help: try the other way
+        self._escape_side = side
+        self._escape_left = self.escape_time
+        # Backing up with w > 0 swings the front to the left.
+        self._escape_cmd = Command(-self.escape_speed, side * self.escape_turnrate)
+        log.debug(
+            "%s: blocked (%s); escaping %s for %.1f s",
+            self.name,
+            why,
+            "left" if side > 0 else "right",
+            self.escape_time,
+        )
+
+    @staticmethod
+    def _open_side(pts: np.ndarray) -> float:
+        """+1 if the left half of the view is more open than the right, else -1."""
+        r = polar_ranges(pts, 36, empty=_OPEN_RANGE)
+        r = np.minimum(r, _OPEN_RANGE)
+        left = float(r[1:13].sum())  # 10 .. 120 deg
+        right = float(r[24:36].sum())  # -120 .. -10 deg
+        return 1.0 if left >= right else -1.0
+
+
+def _check(planner: str, key: str, value: Any, spec: Param) -> Any:
+    def bad() -> ValueError:
+        return ValueError(f"{planner}: parameter {key!r} = {value!r} is invalid; expected {spec.expected()}")
+
+    if spec.size == 1:
+        if isinstance(value, bool) or not isinstance(value, Real):
+            raise bad()
+        vals = (float(value),)
+    else:
+        if isinstance(value, str | bytes | Mapping) or not hasattr(value, "__len__"):
+            raise bad()
+        if len(value) != spec.size or any(isinstance(v, bool) or not isinstance(v, Real) for v in value):
+            raise bad()
+        vals = tuple(float(v) for v in value)
+    los = spec.lo if isinstance(spec.lo, tuple) else (spec.lo,) * spec.size
+    his = spec.hi if isinstance(spec.hi, tuple) else (spec.hi,) * spec.size
+    for v, lo, hi in zip(vals, los, his, strict=True):
+        if not (math.isfinite(v) and lo <= v <= hi):
+            raise bad()
+        if spec.integer and v != int(v):
+            raise bad()
+    if spec.size == 1:
+        return int(vals[0]) if spec.integer else vals[0]
+    return vals

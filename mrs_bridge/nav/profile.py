@@ -1,0 +1,24 @@
+"""The default navigation profile of a simulated Pioneer: the parameters ``rsal sim --nav`` gives
+its drivers and the in-process stack (:mod:`mrs_bridge.nav.stacksim`) uses, in one place.
+
+Values follow the thesis's appendix A.3 where it sets them (wavefront ``distance_epsilon`` 0.4 m,
+``angle_epsilon`` 10°, local planner tolerances tighter than the global ones, "set this to be
+GREATER than the corresponding threshold of the underlying position device") and are tuned for
+the project's maps otherwise. Units are the configuration file's: metres, **degrees**.
+"""
+
+from __future__ import annotations
+
+__all__ = ["AMCL", "WAVEFRONT", "LOCAL", "LOCAL_PLANNERS"]
+
+#: amcl filter size and sensor model (the initial pose is the robot's; see sim_config)
+AMCL: dict = {"pf_min_samples": 200, "pf_max_samples": 2000, "laser_max_beams": 30}
+#: wavefront: clearance beyond the robot's radius and the global tolerances
+WAVEFRONT: dict = {"safety_dist": 0.15, "distance_epsilon": 0.4, "angle_epsilon": 10.0}
+#: local planners' goal tolerances, tighter than wavefront's
+LOCAL: dict[str, dict] = {
+    "vfh": {"distance_epsilon": 0.2, "angle_epsilon": 5.0},
+    "nd": {"goal_tol": [0.2, 5.0]},
+    "snd": {"goal_position_tol": 0.2, "goal_angle_tol": 5.0},
+}
+LOCAL_PLANNERS = tuple(LOCAL)

@@ -1,0 +1,99 @@
+"""The navigation stack on the fabric, multi-process: ``rsal sim WORLD --nav PLANNER`` serves amcl,
+a local planner and wavefront per robot; a client in this process (and ``rsal goto``) sends goals.
+
+Test room (maps/testroom.world): walls at x = ±4.8, y = ±3.8, a box at x 2..3, y -0.5..0.5, r0
+starts at (-2, 0, 0).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+from tests.conftest import ROOT, rsal_cmd, wait_until
+
+WORLD = str(ROOT / "maps" / "testroom.world")
+
+
+def start_nav(procs, port: int, planner: str):
+    p = procs(rsal_cmd("sim", WORLD, "--nav", planner, "--speedup", "2", "--listen", f"tcp/127.0.0.1:{port}"))
+    return p
+
+
+def nav_robot(fab, timeout: float = 30.0):
+    from rsal.robot import NavRobot, robot_devices
+
+    node = fab.node("r0:*:*", "sim:*:*")
+    node.wait_for("r0:planner:0", 1, timeout)
+    node.wait_for("r0:localize:0", 1, timeout)
+    devs = robot_devices(node, "r0")
+    robot = NavRobot(devs)
+    sim = fab.device("sim:simulation:0")
+    # the planner publishes once the map is in and amcl has a pose
+    wait_until(lambda: robot.planner.latest is not None, timeout, "planner data")
+    wait_until(
+        lambda: robot.localize.latest is not None or robot.planner.latest.pose != (0.0, 0.0, 0.0),
+        timeout,
+        "a localized pose",
+    )
+    return robot, sim
+
+
+@pytest.mark.parametrize("planner", ["vfh", "nd", "snd"])
+def test_goto_reaches_the_goal_around_the_box(procs, port, fabric_factory, planner):
+    from rsal.data import Position
+
+    server = start_nav(procs, port, planner)
+    fab = fabric_factory(port)
+    robot, sim = nav_robot(fab)
+    # Goal behind the box: the straight line from (-2, 0) to (4, 0) crosses it.
+    goal = Position(4.0, 0.0, 0.0)
+    fut = robot.goto(goal)
+    assert robot.planner.waypoint_count >= 3 or fut.done(), "the plan should go around the box"
+    try:
+        result = fut.result(timeout=90)
+    except TimeoutError:
+        pytest.fail(f"not done in 90 s: planner {robot.planner.latest}\n{server.output()[-3000:]}")
+    assert result == "done"
+    truth = sim.get_pose("r0")
+    assert math.hypot(truth.x - goal.x, truth.y - goal.y) < 0.6  # wavefront distance_epsilon 0.4 + drift
+    est = robot.localize.get_position()
+    assert math.hypot(est.x - truth.x, est.y - truth.y) < 0.3, (est, truth)
+    assert server.alive()
+
+
+def test_invalid_goals_are_reported_at_once(procs, port, fabric_factory):
+    from rsal.data import Position
+    from rsal.msgs import ErrorCode, RpcError
+
+    start_nav(procs, port, "vfh")
+    fab = fabric_factory(port)
+    robot, _ = nav_robot(fab)
+    for goal, why in ((Position(2.5, 0.0, 0.0), "obstacle"), (Position(30.0, 0.0, 0.0), "outside")):
+        t0 = time.monotonic()
+        fut = robot.goto(goal)
+        with pytest.raises(RpcError) as e:
+            fut.result(timeout=5)
+        assert time.monotonic() - t0 < 1.0
+        assert e.value.code == ErrorCode.NOT_FOUND
+        assert why in str(e.value).lower() or "map" in str(e.value).lower(), str(e.value)
+    wait_until(lambda: robot.planner.status == "invalid", 2.0, "the planner to report the goal invalid")
+    assert "map" in robot.planner.latest.message or "obstacle" in robot.planner.latest.message
+
+
+def test_rsal_goto_command(procs, port):
+    start_nav(procs, port, "vfh")
+    endpoint = f"tcp/127.0.0.1:{port}"
+    bad = procs(rsal_cmd("goto", "r0", "2.5", "0", "--connect", endpoint, "--wait", "30"))
+    wait_until(lambda: not bad.alive(), 60, "rsal goto (invalid goal) to exit")
+    assert bad.p.returncode == 1
+    err = [ln for ln in bad.output().splitlines() if ln.startswith("rsal goto:")]
+    assert len(err) == 1 and "Traceback" not in bad.output(), bad.output()
+    ok = procs(rsal_cmd("goto", "r0", "-1", "-2", "90", "--connect", endpoint, "--progress", "1"))
+    wait_until(lambda: not ok.alive(), 90, "rsal goto to arrive")
+    out = ok.output()
+    assert ok.p.returncode == 0, out
+    assert "[goto] r0:planner:0: done after" in out
+    assert out.count("m to go") >= 1
