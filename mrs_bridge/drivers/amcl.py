@@ -191,7 +191,8 @@ class AmclDriver(Driver):
             if self.range_cap is not None:
                 rmax = min(rmax, self.range_cap)
             t0 = time.perf_counter()
-            if self.filter.sensor(scan.ranges, bearings, origins, scan.range_min, rmax):
+            width = self.beams.beam_width(scan)
+            if self.filter.sensor(scan.ranges, bearings, origins, scan.range_min, rmax, beam_width=width):
                 self.update_ms = (time.perf_counter() - t0) * 1e3
                 self.updates += 1
                 self._after_update(scan.t)

@@ -123,6 +123,13 @@ class BeamGeometry:
         self._cache = (key, origins, bearings)
         return origins, bearings
 
+    def beam_width(self, scan: RangerData) -> float:
+        """The cone width (rad) of one-reading-per-sensor devices (sonar), 0 for a laser's beams."""
+        sens = self.sensors
+        if sens and len(sens) == int(scan.ranges.shape[0]) and all(int(s.get("samples", 1)) == 1 for s in sens):
+            return float(np.mean([float(s.get("fov", 0.0)) for s in sens]))
+        return 0.0
+
     def points(self, scan: RangerData, *, max_range: float | None = None) -> np.ndarray:
         """Obstacle points ``(m, 2)`` in the robot frame; max-range and invalid readings dropped."""
         origins, bearings = self.beams(scan)

@@ -10,13 +10,18 @@ Player's ``amcl`` parameter names, vectorised over particles and beams at once:
   translation from translation, translation from rotation), so the odometry frame's origin does not
   matter. When the robot reverses, the rotation noise uses the smaller of ``rot`` and ``pi - rot``.
   As in Player, particles move only when the robot has moved ``update_thresh`` since the last
-  update; :meth:`Amcl.estimate` adds the odometry motion since then.
+  update (a fresh belief takes the first scan regardless); :meth:`Amcl.estimate` adds the odometry
+  motion since then.
 * **Measurement**: the likelihood-field range model, ch. 6.4: a beam endpoint at distance ``d`` from
-  the nearest occupied cell (the grid's distance field, capped at ``laser_likelihood_max_dist``)
-  has likelihood ``z_hit * N(d; 0, sigma_hit) + z_rand / z_max``; a particle's log-likelihood is the
-  sum over at most ``laser_max_beams`` evenly chosen beams, max-range readings skipped. Beams carry
-  their own origins and bearings in the robot frame, so a laser and a Pioneer sonar ring use the
-  same model. A compiled kernel (numba) makes one fused pass over particles x beams.
+  the nearest obstacle surface (capped at ``laser_likelihood_max_dist``) has likelihood
+  ``z_hit * N(d; 0, sigma_hit) + z_rand / z_max``; a particle's log-likelihood is the sum over at
+  most ``laser_max_beams`` beams spread evenly over the valid ones (max-range readings skipped).
+  ``d`` counts depth inside obstacles too: the grid's own field, 0 anywhere inside a wall, pulls
+  the estimate towards poses whose beams end deep in thick walls (0.25 m off on the floor map).
+  Beams carry their own origins and bearings in the robot frame, so a laser and a Pioneer sonar
+  ring use the same model; a sonar beam may be a cone (``beam_width``), scored by the best of
+  :data:`CONE_RAYS` rays across it, since the echo comes from the nearest surface anywhere in the
+  cone. A compiled kernel (numba) makes one fused pass over particles x beams.
 * **Tempering** (an extension, ``pf_temper_ess``): beams are not independent, and with the plain
   product of 30 beams one update can leave a single particle standing. Each scan's likelihood is
   raised to the largest power ``beta`` in (0, 1] that keeps the effective sample size of the new
@@ -358,7 +363,9 @@ class Amcl:
 
     Feed every odometry pose to :meth:`odometry` and every scan to :meth:`sensor`; read
     :meth:`estimate` or :meth:`hypotheses`. ``particles`` is ``(n, 3)`` map poses, ``weights``
-    their normalised weights, ``n_updates`` the number of sensor updates applied so far.
+    their normalised weights, ``n_updates`` the number of sensor updates applied so far (never
+    reset), ``temper`` the power the last scan's likelihood was raised to and
+    :attr:`recovery_probability` Augmented MCL's current share of random particles.
     """
 
     def __init__(self, grid: NavGrid, params: AmclParams | None = None):
@@ -369,7 +376,8 @@ class Amcl:
         if fx.size == 0:
             raise ValueError("the map has no free cells to localize in")
         self._free_x, self._free_y = grid.cell_to_world(fx, fy)
-        self._fields: dict[float, np.ndarray] = {}
+        self._fields: dict[float, np.ndarray] = {}  # log-likelihood tables per range_max
+        self._surface: np.ndarray | None = None
         #: the power the last scan's likelihood was raised to (1: none; see ``pf_temper_ess``)
         self.temper = 1.0
         self.n_updates = 0
@@ -450,11 +458,12 @@ class Amcl:
 
     # ------------------------------------------------------------------ motion
     def odometry(self, pose) -> bool:
-        """Feed an odometry pose ``(x, y, yaw)``; returns whether a sensor update is due.
+        """Feed an odometry pose ``(x, y, yaw)`` (odometry frame); returns whether a sensor update is due.
 
-        The first pose only anchors the filter. Once the robot has moved ``update_thresh`` (either
-        distance or turn) since the last update, the motion model moves the particles and the
-        next scan is applied.
+        The first pose only anchors the odometry. Once the robot has moved ``update_thresh``
+        (distance or turn) since the last update, the motion model moves the particles and the
+        next scan is applied; motion after that, until the scan arrives, is applied with it. After
+        (re-)initialisation the next scan is due whether or not the robot moves, as in Player.
         """
         p = np.asarray(pose, dtype=np.float64).reshape(-1)
         if p.shape != (3,) or not np.isfinite(p).all():
@@ -528,7 +537,9 @@ class Amcl:
         f = self._fields.get(range_max)
         if f is None:
             p = self.params
-            d = np.minimum(self._surface_distance(), p.laser_likelihood_max_dist)
+            if self._surface is None:
+                self._surface = self._surface_distance()
+            d = np.minimum(self._surface, p.laser_likelihood_max_dist)
             d = np.pad(d, 1, constant_values=p.laser_likelihood_max_dist)
             log_hit = math.log(p.laser_z_hit) - 0.5 * (d / p.laser_sigma_hit) ** 2
             log_hit -= math.log(p.laser_sigma_hit * math.sqrt(2.0 * math.pi))
@@ -706,7 +717,7 @@ class Amcl:
             q, w = self._weighed()
             self._cached = (self._stamp, *_mean_cov(q, w))
         _, mean, cov = self._cached
-        return mean.copy(), cov.copy()
+        return _compose(mean, self._pending()), cov.copy()
 
     def hypotheses(self) -> list[tuple[float, np.ndarray, np.ndarray]]:
         """``(weight, mean, covariance)`` per cluster of particles, heaviest first.
