@@ -124,6 +124,10 @@ def parse_reply(data: bytes, *, is_error: bool = False, key: str = "") -> dict:
     try:
         m = decode_map(data)
     except MessageError as e:
+        if is_error:  # an error from the transport itself (e.g. Zenoh's "Timeout"), not from a device
+            text = bytes(data).decode("utf-8", "replace").strip() or "error"
+            code = ErrorCode.TIMEOUT if "timeout" in text.lower() else ErrorCode.UNAVAILABLE
+            raise RpcError(code, f"no answer from the device: {text}", key) from None
         raise RpcError(ErrorCode.BAD_REQUEST, f"malformed reply: {e}", key) from None
     if is_error or not m.get("ok", False):
         raise RpcError(m.get("code", ErrorCode.INTERNAL), m.get("message", "error without a message"), key)

@@ -34,6 +34,8 @@ from __future__ import annotations
 import math
 import time
 
+import numpy as np
+
 from rsal.msgs import ErrorCode, MapData, MessageError, PlannerData, Position2dData, RpcError, VelocityCmd, get_vec
 
 from ..config import ConfigError
@@ -155,6 +157,15 @@ class WavefrontDriver(Driver):
             replan_dist_thresh=self.replan_dist_thresh,
             replan_min_time=self.replan_min_time,
         )
+        # Compile the search now (numba, cached on disk after the first run), not on the first goal.
+        iy, ix = np.nonzero(planner.allowed)
+        if len(ix):
+            a = self._grid.cell_to_world(ix[0], iy[0])
+            try:
+                planner.plan((float(a[0]), float(a[1])), (float(a[0]), float(a[1])))
+            except Exception:
+                pass
+            planner.reset()
         self.log.info(
             "%s: configuration space ready (radius %.2f m + safety %.2f m) in %.0f ms",
             self.cfg.where,

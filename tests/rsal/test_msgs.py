@@ -339,3 +339,12 @@ def test_rpc_error_without_key():
 
 def test_message_error_is_a_value_error():
     assert issubclass(MessageError, ValueError)
+
+
+@pytest.mark.parametrize(("raw", "code"), [(b"Timeout", ErrorCode.TIMEOUT), (b"no route", ErrorCode.UNAVAILABLE)])
+def test_a_transport_error_reply_is_not_a_device_error(raw, code):
+    """Zenoh itself answers a query it could not complete with a plain-text error."""
+    with pytest.raises(RpcError) as ei:
+        parse_reply(raw, is_error=True, key="rsal/r0/planner/0/rpc/set_goal")
+    assert ei.value.code == code
+    assert raw.decode() in ei.value.message
