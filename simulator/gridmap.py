@@ -115,9 +115,11 @@ class GridMap:
         """Distance in metres from world points to the nearest occupied cell (0 outside the map)."""
         ix, iy = self.world_to_cell(x, y)
         inside = (ix >= 0) & (ix < self.width) & (iy >= 0) & (iy < self.height)
+        if np.ndim(ix) == 0:
+            return float(self.distance[iy, ix]) if inside else 0.0
         out = np.zeros(np.shape(ix), dtype=np.float32)
-        out[inside] = self.distance[iy[inside], ix[inside]] if np.ndim(ix) else self.distance[iy, ix]
-        return out if np.ndim(ix) else float(out)
+        out[inside] = self.distance[iy[inside], ix[inside]]
+        return out
 
     def is_free(self, x, y, clearance: float = 0.0):
         """True where the point is on the map and at least ``clearance`` metres from obstacles."""

@@ -24,22 +24,32 @@ What every planner shares, and therefore lives here:
   to the goal yaw until within the angle tolerance; then the status is ``done`` and the command
   zero. Near the goal the speed is capped so the robot can stop on it.
 * **A motion guard** every command passes: the free length of the commanded arc for the robot's
-  disc (``robot_radius``) grown by the planner's safety distance is computed for all obstacle
-  points at once, and the forward speed is cut to what can still stop in that length within one
-  control period (:func:`free_path_length`). No command moves the robot towards an obstacle that
-  is already inside the safety distance.
+  disc (``robot_radius``, half the base's diagonal) grown by the planner's safety distance is
+  computed for all obstacle points at once, and the forward speed is cut to what can still stop
+  in that length within one control period (:func:`free_path_length`). No command moves the robot
+  towards an obstacle inside the safety distance. When the guard stops a forward command, the
+  robot turns on the spot towards the free heading nearest the one the algorithm wanted and keeps
+  to it for 1.5 s unless the algorithm comes round to it: it slides round what stopped it instead
+  of dithering where the algorithm and the guard disagree.
+* **A scan memory** (:class:`ScanMemory`): points of the last 3 s within 2 m, kept in the odometry
+  frame, fill in the directions the sensors do not cover (behind a 240-degree laser), so turning on
+  the spot does not forget an obstacle; the robot never backs up into space that has not been in
+  view within those 3 s.
 * **Limits**: ``|v|`` and ``|w|`` within the planner's maximum speed and turn rate; speeding up by
   at most the planner's acceleration per second (slowing down is never limited: a planner must
   be able to stop).
 * **Stuck detection and escape**: no free direction for longer than the planner's blocked time,
-  or no progress (moved less than a distance and turned less than an angle within a time), puts
-  the planner into status ``blocked`` and starts an escape: back up at the escape speed while
-  turning towards the more open side for the escape time, then plan again (and escape again,
-  turning the other way, while still blocked).
+  or no net progress in a window (closer to the goal, away from where the window began, or turned
+  by an angle), puts the planner into status ``blocked`` and starts an escape: back up at the
+  escape speed (where the guard and the memory allow) while turning towards the more open side for
+  the escape time, then plan again -- and escape again, turning the other way, while still blocked.
+* **A traffic rule**: of two ways round about equally good, take the right one (:data:`KEEP_RIGHT`);
+  two robots meeting head-on then pass each other instead of mirroring each other's moves.
 * **Polar helpers** over the obstacle points: sector minimum ranges (:func:`polar_ranges`) and a
   swept-corridor test (:func:`corridor_clear`), all vectorised with numpy over the points.
 
-Units inside the objects are SI (metres, radians, seconds).
+Units inside the objects are SI (metres, radians, seconds). Closed-loop runs on the simulator are
+in :mod:`mrs_bridge.nav.localsim`.
 """
 
 from __future__ import annotations
@@ -80,6 +90,8 @@ _OPEN_RANGE = 3.0  # m: ranges counted when judging which side is more open
 _REAR_HALF_WIDTH = math.radians(45.0)  # backing up needs this cone behind seen within the memory's time
 _SLIDE_DIRS = np.radians(np.arange(-120.0, 121.0, 10.0))  # headings tried when the guard stops the robot
 _SLIDE_FREE = 0.5  # m of straight free path that makes a heading worth turning to
+_SLIDE_COMMIT = 1.5  # s the robot keeps to a slide heading before the algorithm steers again
+_SLIDE_AGREE = math.radians(20.0)  # ... unless the algorithm's own heading is this close to it
 
 
 class Status(StrEnum):
@@ -112,7 +124,8 @@ class Param:
     doc: str = ""
     size: int = 1  # 1: a number; k > 1: a list of k numbers
     integer: bool = False
-    same_as: str | None = None  # the default is this (earlier) parameter's value
+    same_as: str | None = None  # the default is this (earlier) parameter's value ...
+    factor: float = 1.0  # ... times this
 
     def expected(self) -> str:
         kind = "an integer" if self.integer else "a number"
@@ -390,7 +403,8 @@ class LocalPlanner:
             if key in params:
                 out[key] = _check(cls.name, key, params[key], spec)
             elif spec.same_as is not None:
-                out[key] = out[spec.same_as]
+                ref = out[spec.same_as]
+                out[key] = ref if spec.factor == 1.0 else ref * spec.factor
             else:
                 out[key] = spec.default
         return out
@@ -500,10 +514,16 @@ class LocalPlanner:
             if self._no_way >= self.blocked_after:
                 self._no_way = 0.0
                 self._blocked(pts, "no free direction", pose)
-        if self._stuck(x, y, yaw):
+        if self._stuck(x, y, yaw, dist):
             self._blocked(pts, "no progress", pose)
         if self._escape_left > 0.0:
             return self._escape_cmd
+        if self._slide_dir is not None and self._clock < self._slide_until:
+            # Committed to sliding round what the guard stopped us at, unless the algorithm agrees.
+            rel = float(wrap(self._slide_dir - yaw))
+            if abs(wrap(self.heading_wanted - rel)) > _SLIDE_AGREE:
+                w = float(np.clip(_TURN_GAIN * rel, -self.w_max, self.w_max))
+                v = 0.5 * self.v_max * max(0.0, 1.0 - abs(rel) / _SLIDE_AGREE)
         # Approach: be able to stop on the goal (within half the tolerance).
         v = min(v, math.sqrt(2.0 * self.brake * max(dist - 0.5 * self.pos_tol, 0.0)), 1.5 * dist)
         return v, w
@@ -542,6 +562,7 @@ class LocalPlanner:
             cost = cost + 0.5 * np.abs(wrap(_SLIDE_DIRS + self._pose[2] - self._slide_dir))
         phi = float(_SLIDE_DIRS[np.argmin(np.where(free, cost, np.inf))])
         self._slide_dir, self._slide_at = float(wrap(phi + self._pose[2])), self._clock
+        self._slide_until = self._clock + _SLIDE_COMMIT
         if abs(phi) < 1e-9:
             return 0.0
         return math.copysign(min(max(_TURN_GAIN * abs(phi), self.turn_min), self.w_max), phi)
@@ -576,34 +597,40 @@ class LocalPlanner:
         self._escape_left = 0.0
         self._escape_cmd = STOP
         self._escape_side = 0.0
-        self._anchor: tuple[float, float, float, float] | None = None
+        self._anchor: tuple[float, float, float, float, float] | None = None
         self._moved_at = 0.0
         self._slide_dir: float | None = None
         self._slide_at = -math.inf
+        self._slide_until = -math.inf
         self._reset_algorithm()
 
     def _reset_algorithm(self) -> None:
         """Forget the algorithm's memory (a new goal or stop)."""
 
-    def _progress_reset(self, x: float, y: float, yaw: float) -> None:
-        self._anchor = (self._t, x, y, yaw)
+    def _progress_reset(self, x: float, y: float, yaw: float, dist: float = math.inf) -> None:
+        self._anchor = (self._t, x, y, yaw, dist)
         self._moved_at = self._t
 
-    def _stuck(self, x: float, y: float, yaw: float) -> bool:
+    def _stuck(self, x: float, y: float, yaw: float, dist: float) -> bool:
+        """Progress is judged once per window of ``stuck_time``: by its end the robot must have got
+        ``stuck_dist`` closer to the goal, or be ``stuck_dist`` from where the window began, or be
+        turned ``stuck_angle`` from its heading then -- net, so dithering on the spot is no
+        progress. Turning alone counts for at most ``rotate_stuck_time``."""
         a = self._anchor
         if a is None:
-            self._progress_reset(x, y, yaw)
+            self._progress_reset(x, y, yaw, dist)
             return False
-        t0, x0, y0, yaw0 = a
-        moved = math.hypot(x - x0, y - y0)
-        if moved >= self.stuck_dist:
-            self._progress_reset(x, y, yaw)
+        t0, x0, y0, yaw0, d0 = a
+        if self._t - t0 < self.stuck_time:
             return False
-        if abs(wrap(yaw - yaw0)) >= self.stuck_angle:
-            # Turning counts as progress for stuck_time, but not for ever (rotate_stuck_time).
-            self._anchor = (self._t, x0, y0, yaw)
-            return self._t - self._moved_at >= self.rotate_stuck_time
-        return self._t - t0 >= self.stuck_time or self._t - self._moved_at >= self.rotate_stuck_time
+        moved = math.hypot(x - x0, y - y0) >= self.stuck_dist or dist <= d0 - self.stuck_dist
+        turned = abs(wrap(yaw - yaw0)) >= self.stuck_angle
+        moved_at = self._t if moved else self._moved_at
+        self._anchor = (self._t, x, y, yaw, dist)
+        self._moved_at = moved_at
+        if moved:
+            return False
+        return not turned or self._t - moved_at >= self.rotate_stuck_time
 
     def _blocked(self, pts: np.ndarray, why: str, pose: tuple[float, float, float]) -> None:
         repeat = self.status == Status.BLOCKED

@@ -187,6 +187,11 @@ def run(
 
 
 # ----------------------------------------------------------------------------------------------- trials
+def _clear(grid, x: float, y: float) -> float:
+    """Map clearance at one point (arrays in: GridMap.clearance bounds-checks only those)."""
+    return float(grid.clearance(np.array([x]), np.array([y]))[0])
+
+
 def _segment_clearance(grid, a, b, step: float = 0.05) -> float:
     n = max(2, int(math.hypot(b[0] - a[0], b[1] - a[1]) / step) + 1)
     t = np.linspace(0.0, 1.0, n)
@@ -210,7 +215,7 @@ def draw_trial(grid, rng: np.random.Generator, *, others: int = 2, tries: int = 
     x0, x1, y0, y1 = grid.extent
     for _ in range(tries):
         sx, sy = rng.uniform(x0, x1), rng.uniform(y0, y1)
-        if grid.clearance(sx, sy) < 0.6:
+        if _clear(grid, sx, sy) < 0.6:
             continue
         length = rng.uniform(2.0, 5.0)
         heading = rng.uniform(-math.pi, math.pi)
@@ -222,7 +227,7 @@ def draw_trial(grid, rng: np.random.Generator, *, others: int = 2, tries: int = 
         lat = rng.uniform(-0.15, 0.15)
         bx = sx + f * (gx - sx) - lat * math.sin(heading)
         by = sy + f * (gy - sy) + lat * math.cos(heading)
-        if grid.clearance(bx, by) < 1.1 + 0.5 * side:
+        if _clear(grid, bx, by) < 1.1 + 0.5 * side:
             continue
         start = (sx, sy, float(wrap(heading + rng.uniform(-0.5, 0.5))))
         goal = (gx, gy, float(rng.uniform(-math.pi, math.pi)))
@@ -241,7 +246,9 @@ def draw_trial(grid, rng: np.random.Generator, *, others: int = 2, tries: int = 
 
 
 def _draw_other(grid, rng, start, goal, taken, *, head_on: bool):
-    """Another robot's run near the main one: head-on from the goal's end, or crossing it."""
+    """Another robot's run near the main one: head-on from the goal's end, or crossing it. Only
+    its start is kept clear of the main run; its goal may lie anywhere free on the map near the
+    main run (which only makes a trial harder)."""
     for _ in range(200):
         if head_on:
             ox, oy = goal[0] + rng.uniform(-1.0, 1.0), goal[1] + rng.uniform(-1.0, 1.0)
@@ -252,7 +259,7 @@ def _draw_other(grid, rng, start, goal, taken, *, head_on: bool):
             dist = rng.uniform(1.5, 3.0)
             ox, oy = mx + dist * math.cos(a), my + dist * math.sin(a)
             tx, ty = mx - dist * math.cos(a), my - dist * math.sin(a)
-        if grid.clearance(ox, oy) < 0.6 or grid.clearance(tx, ty) < 0.6:
+        if _clear(grid, ox, oy) < 0.6 or _clear(grid, tx, ty) < 0.6:
             continue
         if any(math.hypot(ox - x, oy - y) < r + 0.35 for x, y, r in taken):
             continue

@@ -15,32 +15,37 @@ situation the robot is in picks the motion law. Each cycle:
    least one of its discontinuities (a *rising* discontinuity).
 3. **Region selection.** If a disc of the robot's radius plus ``safety_dist`` can travel straight
    to the goal, the goal direction is the target. Otherwise the valleys are tried nearest the goal
-   first: a valley is taken when it is *navigable* -- its rising discontinuity nearest the goal
-   leaves a gap (from the near obstacle point across to the closest obstacle point beyond it) at
-   least the robot's diameter plus twice ``safety_dist`` wide. The target is the centre of that gap
-   when it is narrow, else the direction that passes the gap's near point with the robot's radius
-   plus ``avoid_dist`` to spare. No navigable valley: no free direction.
+   first (of two about equally near, the one clockwise of the goal: keep right): a valley is taken
+   when it is *navigable* -- its rising discontinuity nearest the goal leaves a gap (from the near
+   obstacle point across to the closest obstacle point beyond it) at least the robot's diameter
+   plus twice ``safety_dist`` plus 0.1 m wide. The target is the centre of that gap when it is
+   narrow, else the direction that passes the gap's near point with the robot's radius plus
+   ``avoid_dist`` to spare. No navigable valley: no free direction.
 4. **Situations.** High safety (no obstacle inside the security zone of ``avoid_dist`` around the
    body): head for the target (the goal region, wide region and narrow region situations differ
-   only in the target of step 3). Low safety: the closest obstacle on each side of the target
-   direction within the zone pushes the heading away from itself -- at least
-   ``90 deg * (1 - gap / avoid_dist)`` from its direction. With an obstacle on one side only
-   (situation LS1) the heading is turned away from it; with obstacles on both sides (LS2) it is
-   kept in the cone between them, centred when both push.
+   only in the target of step 3). Low safety: every obstacle within the zone pushes the heading
+   away from itself -- at least ``90 deg * (1 - gap / avoid_dist)`` from its direction, and far
+   enough that the straight path passes it with the robot's radius plus ``safety_dist`` to spare.
+   With obstacles on one side only (situation LS1) the heading is turned away from them; with
+   obstacles on both sides (LS2) it is kept in the cone between them, split down the middle when
+   both push harder than the cone allows. An obstacle dead ahead counts as on the left (keep
+   right).
 5. **Motion.** Speed ``max_speed[0]`` scaled by how deep the nearest obstacle ahead is inside the
    zone and by the angle still to turn (none beyond 90 degrees); turn rate ``max_speed[1]`` scaled
    by that angle over 45 degrees; non-zero commands are at least ``min_speed``.
 
-Stuck detection (``rotate_stuck_time``, ``translate_stuck_time``, ``translate_stuck_dist``,
-``translate_stuck_angle``) follows Player's driver: no free direction while rotating for
-``rotate_stuck_time``, or less than ``translate_stuck_dist`` moved and ``translate_stuck_angle``
-turned within ``translate_stuck_time``, is status ``blocked``; the escape then backs the robot up
-for 2 s at 0.1 m/s turning 30 deg/s towards the more open side (Player's driver only waits).
+Stuck detection uses Player's options: no free direction (turning on the spot) for
+``rotate_stuck_time``, or -- judged once per ``translate_stuck_time`` -- neither
+``translate_stuck_dist`` of net progress (closer to the goal or away from where the window began)
+nor ``translate_stuck_angle`` of net turn, is status ``blocked``; the escape then turns the robot
+for 2 s at 30 deg/s towards the more open side, backing up at 0.1 m/s where the space behind has
+been in view (Player's driver only waits).
 
 Parameters are Player's, in its units (m, m/s, deg, deg/s). ``robot_geometry`` ``[length, width]``
 (an addition, Player reads it from the base) defaults to the base's geometry given to the
-constructor, else 0.44 x 0.38 m (a Pioneer 2DX). Defaults marked "tuned" differ from Player's after
-the closed-loop sweep of ``benchmarks/bench_local.py --trials``.
+constructor, else 0.44 x 0.38 m (a Pioneer 2DX). Defaults differ from Player's where marked "tuned"
+(the closed-loop sweep of ``benchmarks/bench_local.py --trials`` showed a better value) or
+"project" (chosen for the project's Pioneers at 10 Hz, not swept).
 """
 
 from __future__ import annotations
@@ -70,18 +75,18 @@ class ND(LocalPlanner):
             (0.0, 1.0),
             (5.0, 720.0),
             "m/s, deg/s",
-            "top forward speed and turn rate (tuned; Player [0.3 45])",
+            "top forward speed and turn rate (project; Player [0.3 45])",
             size=2,
         ),
         "min_speed": Param(
             (0.05, 10.0), (0.0, 0.0), (1.0, 180.0), "m/s, deg/s", "least non-zero forward speed and turn rate", size=2
         ),
-        "obstacle_avoid_dist": Param(3.0, 0.5, 50.0, "m", "obstacles farther than this are ignored"),
-        "safety_dist": Param(0.1, 0.0, 2.0, "m", "clearance always kept to obstacles (tuned; Player 0)"),
+        "obstacle_avoid_dist": Param(2.0, 0.5, 50.0, "m", "obstacles farther than this are ignored (tuned)"),
+        "safety_dist": Param(0.1, 0.0, 2.0, "m", "clearance always kept to obstacles (project; Player 0)"),
         "goal_tol": Param((0.5, 10.0), (0.01, 0.1), (10.0, 180.0), "m, deg", "goal position and yaw tolerance", size=2),
         "avoid_dist": Param(0.4, 0.05, 5.0, "m", "width of the security zone around the body"),
         "rotate_stuck_time": Param(
-            5.0, 0.1, 600.0, "s", "turning without moving this long is stuck (tuned; Player 10)"
+            5.0, 0.1, 600.0, "s", "turning without moving this long is stuck (project; Player 10)"
         ),
         "translate_stuck_time": Param(10.0, 0.1, 600.0, "s", "time in which the robot must make progress"),
         "translate_stuck_dist": Param(0.15, 0.0, 5.0, "m", "progress: moving this far ..."),
@@ -237,7 +242,7 @@ class ND(LocalPlanner):
         """Turn the heading away from the obstacles in the zone on each side of the target: at
         least ``90 deg * (1 - gap / avoid_dist)`` from each, and far enough that the straight path
         passes it with the robot's radius plus ``safety_dist`` to spare."""
-        rel = wrap(self._angles - target)
+        rel = wrap(self._angles - target + KEEP_RIGHT)  # keep right: dead ahead counts as left
         prox = np.clip(gap / self._ds, 0.0, 1.0)
         clear = np.arcsin(np.minimum(1.0, (self.robot_radius + self._safety) / np.maximum(d, 1e-6)))
         margin = np.maximum(0.5 * math.pi * (1.0 - prox), clear)  # required angle heading-obstacle
@@ -250,7 +255,7 @@ class ND(LocalPlanner):
             lo = float((rel[right] + margin[right]).max())
         sides = int(left.any()) + int(right.any())
         if lo <= hi:
-            theta = min(max(0.0, lo), hi)
+            theta = min(max(KEEP_RIGHT, lo), hi)
         else:  # pushed harder from both sides than the cone between allows: split the difference
             theta = 0.5 * (lo + hi)
-        return wrap(target + theta), sides
+        return wrap(target + theta - KEEP_RIGHT), sides

@@ -7,10 +7,11 @@ Fast Mobile Robots". Each cycle:
 1. **Active window.** Obstacle points within the window (``window_diameter`` cells of
    ``cell_size`` metres, centred on the robot) mark their grid cells occupied. Every occupied cell
    has a magnitude ``m = c (a - d)^4`` that grows as its distance ``d`` shrinks (``a`` is the
-   window radius; ``c = 1e4 m^-4``, the scale of Player's driver, so its unitless cutoffs such as
-   the default ``free_space_cutoff_0ms`` of 2e6 mean the same here: a wall blocks its sectors from
-   about 0.6 m, a single cell never -- the enlargement and the motion guard keep the robot clear
-   of small obstacles). Lower cutoffs are more cautious. Cell geometry is tabulated once.
+   window radius; ``c = 1e4 m^-4``, the scale of Player's driver, so its unitless cutoffs mean the
+   same here). A wall straight ahead sums to about 1.1e6 in its sector at 1 m, 2.2e6 at 0.6 m
+   and 3.4e5 at 1.5 m; a single cell stays below 4e5 -- small obstacles are kept clear of by the
+   enlargement and the motion guard. Lower cutoffs are more cautious. Cell geometry is tabulated
+   once.
 2. **Primary polar histogram** (VFH+ enlargement). A cell at direction ``beta`` adds its
    magnitude to every sector within ``beta +- asin(r_rs / d)``, ``r_rs`` being the robot radius
    plus the speed-dependent safety distance (``safety_dist_0ms`` .. ``safety_dist_1ms``): the
@@ -25,18 +26,26 @@ Fast Mobile Robots". Each cycle:
 5. **Direction.** Openings are runs of free sectors. A narrow one (up to 80 degrees) offers its
    centre; a wide one its two sides 40 degrees in from the borders, and the goal direction if it
    lies between them. The candidate with the least ``weight_desired_dir * |to goal| +
-   weight_current_dir * |to the last chosen direction|`` wins.
+   weight_current_dir * |to the last chosen direction|`` wins (the last direction is kept in the
+   odometry frame; a candidate left of the goal pays :data:`~mrs_bridge.nav.local.KEEP_RIGHT`
+   extra, so ties go right).
 6. **Speed.** ``max_speed_narrow_opening`` or ``max_speed_wide_opening`` (never above
    ``max_speed``), reduced by the obstacle density straight ahead and by the angle still to turn;
    turn rate proportional to that angle, at least ``min_turnrate`` and at most ``max_turnrate``
    interpolated between ``max_turnrate_0ms`` and ``max_turnrate_1ms``.
 
-No free sector at all for more than a second is status ``blocked``; the escape (``escape_speed``,
-``escape_time``, ``escape_max_turnrate``) backs the robot up while turning to the more open side.
+No free sector at all for more than a second, or no progress in 10 s, is status ``blocked``; the
+escape (``escape_speed``, ``escape_time``, ``escape_max_turnrate``; Player's default 0 disables
+it) backs the robot up, where it has looked lately, while turning to the more open side.
 
 Parameters are Player's, in its units (m, m/s, deg, deg/s); ``*_0ms``/``*_1ms`` pairs are linear
-in the speed. Defaults are Player's except where the closed-loop sweep on the project's maps
-(``benchmarks/bench_local.py --trials``) showed a better value: those are marked "tuned".
+in the speed, and ``min_turn_radius_safety_factor`` is accepted too. Defaults are Player's except
+where marked "tuned" (the closed-loop sweep of ``benchmarks/bench_local.py --trials`` -- random
+2-5 m runs on the floor map past a box that is not on the map, two other robots crossing -- showed
+a better value) or "project" (chosen for the project's Pioneers at 10 Hz, not swept). Notably the
+cutoffs: the sweep favoured ``free_space_cutoff_0ms`` 1e6 with the ``obs_cutoff`` pair at twice
+the free ones (hysteresis) over Player's 2e6 without, and showed 4e6 and above failing most runs
+(the robot then only ever stops at the motion guard).
 """
 
 from __future__ import annotations
@@ -68,33 +77,45 @@ class VFH(LocalPlanner):
         "sector_angle": Param(5, 1, 45, "deg", "histogram sector width (must divide 360)", integer=True),
         "safety_dist_0ms": Param(0.1, 0.0, 2.0, "m", "clearance kept to obstacles when stopped"),
         "safety_dist_1ms": Param(None, 0.0, 2.0, "m", "clearance kept at 1 m/s", same_as="safety_dist_0ms"),
-        "max_speed": Param(0.4, 0.0, 5.0, "m/s", "top forward speed (tuned; Player 0.2)"),
+        "max_speed": Param(0.4, 0.0, 5.0, "m/s", "top forward speed (thesis A.3; Player 0.2)"),
         "max_speed_narrow_opening": Param(
             None, 0.0, 5.0, "m/s", "top speed through narrow openings", same_as="max_speed"
         ),
         "max_speed_wide_opening": Param(None, 0.0, 5.0, "m/s", "top speed through wide openings", same_as="max_speed"),
-        "max_acceleration": Param(0.3, 0.01, 10.0, "m/s^2", "speeding-up limit (tuned; Player 0.2)"),
+        "max_acceleration": Param(0.3, 0.01, 10.0, "m/s^2", "speeding-up limit (project; Player 0.2)"),
         "min_turnrate": Param(10.0, 0.0, 360.0, "deg/s", "least turn rate when turning"),
-        "max_turnrate_0ms": Param(60.0, 1.0, 720.0, "deg/s", "turn rate limit when stopped (tuned; Player 40)"),
+        "max_turnrate_0ms": Param(60.0, 1.0, 720.0, "deg/s", "turn rate limit when stopped (project; Player 40)"),
         "max_turnrate_1ms": Param(None, 1.0, 720.0, "deg/s", "turn rate limit at 1 m/s", same_as="max_turnrate_0ms"),
         "min_turn_radius_safety_factor": Param(1.0, 0.0, 10.0, "", "scales the turning circles of the mask"),
-        "free_space_cutoff_0ms": Param(2.0e6, 0.0, math.inf, "", "below: sector free (stopped)"),
+        "free_space_cutoff_0ms": Param(1.0e6, 0.0, math.inf, "", "below: sector free, stopped (tuned; Player 2e6)"),
         "obs_cutoff_0ms": Param(
-            None, 0.0, math.inf, "", "above: sector blocked (stopped)", same_as="free_space_cutoff_0ms"
+            None,
+            0.0,
+            math.inf,
+            "",
+            "above: sector blocked, stopped (tuned: 2 x free; Player: = free)",
+            same_as="free_space_cutoff_0ms",
+            factor=2.0,
         ),
         "free_space_cutoff_1ms": Param(
-            None, 0.0, math.inf, "", "below: sector free (1 m/s)", same_as="free_space_cutoff_0ms"
+            None, 0.0, math.inf, "", "below: sector free at 1 m/s", same_as="free_space_cutoff_0ms"
         ),
         "obs_cutoff_1ms": Param(
-            None, 0.0, math.inf, "", "above: sector blocked (1 m/s)", same_as="free_space_cutoff_1ms"
+            None,
+            0.0,
+            math.inf,
+            "",
+            "above: sector blocked at 1 m/s (tuned: 2 x free; Player: = free)",
+            same_as="free_space_cutoff_1ms",
+            factor=2.0,
         ),
         "weight_desired_dir": Param(5.0, 0.0, 1000.0, "", "cost weight of the angle to the goal"),
         "weight_current_dir": Param(1.0, 0.0, 1000.0, "", "cost weight of the angle to the last direction"),
         "distance_epsilon": Param(0.5, 0.01, 10.0, "m", "goal position tolerance"),
         "angle_epsilon": Param(10.0, 0.1, 180.0, "deg", "goal yaw tolerance"),
-        "escape_speed": Param(0.1, 0.0, 2.0, "m/s", "backing-up speed when blocked (tuned; Player 0)"),
-        "escape_time": Param(2.0, 0.0, 60.0, "s", "duration of one escape (tuned; Player 0)"),
-        "escape_max_turnrate": Param(30.0, 0.0, 360.0, "deg/s", "turn rate while escaping (tuned; Player 0)"),
+        "escape_speed": Param(0.1, 0.0, 2.0, "m/s", "backing-up speed when blocked (project; Player 0: off)"),
+        "escape_time": Param(2.0, 0.0, 60.0, "s", "duration of one escape (project; Player 0: off)"),
+        "escape_max_turnrate": Param(30.0, 0.0, 360.0, "deg/s", "turn rate while escaping (project; Player 0: off)"),
     }
 
     # ------------------------------------------------------------------ configuration

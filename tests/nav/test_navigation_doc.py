@@ -168,7 +168,7 @@ def local_defaults(name: str) -> dict[str, object]:
     from mrs_bridge.drivers.localplanner import NDDriver, SNDDriver, VFHDriver
 
     algo = {"vfh": VFHDriver, "nd": NDDriver, "snd": SNDDriver}[name].algorithm
-    return {k: (p.default if p.same_as is None else ("=", p.same_as)) for k, p in algo.PARAMS.items()}
+    return {k: (p.default if p.same_as is None else ("=", p.same_as, p.factor)) for k, p in algo.PARAMS.items()}
 
 
 DEFAULTS = {
@@ -190,7 +190,8 @@ def test_parameter_tables_match_the_code(page):
         for name, default in code.items():
             cell = table[name]
             if isinstance(default, tuple) and default[:1] == ("=",):
-                assert cell == f"= `{default[1]}`", f"{page.name} {driver}.{name}: {cell!r}"
+                scale = "" if len(default) < 3 or default[2] == 1 else f"{default[2]:g} x "
+                assert cell == f"= {scale}`{default[1]}`", f"{page.name} {driver}.{name}: {cell!r}"
             elif isinstance(default, bool):
                 assert cell == f"`{str(default).lower()}`", f"{page.name} {driver}.{name}: {cell!r}"
             elif isinstance(default, int | float | tuple) and cell.startswith("`"):

@@ -414,3 +414,14 @@ def test_errors_name_the_model_and_the_fix(tmp_path):
         w.add_model(robot())
     with pytest.raises(ModelError, match="has 0 ranger"):
         w.ranger("r0", 0)
+
+
+def test_clearance_of_a_single_point_off_the_map_is_zero():
+    import numpy as np
+
+    from simulator.gridmap import GridMap
+
+    g = GridMap(np.zeros((10, 10), dtype=bool), 0.1, (0.0, 0.0))
+    assert g.clearance(50.0, 50.0) == 0.0
+    assert g.clearance(0.55, 0.55) > 0.0
+    assert g.clearance(np.array([0.55, 50.0]), np.array([0.55, 50.0])).tolist()[1] == 0.0
