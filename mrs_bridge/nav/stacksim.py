@@ -56,16 +56,10 @@ def in_contact(world: World, name: str) -> bool:
 
 
 def _scan(reading):
-    from rsal.msgs import RangerData
+    """The scan as the ``sim`` driver publishes it (a RangerData with the beam geometry)."""
+    from ..drivers.sim import SimDriver
 
-    s = reading.spec.sensors
-    if reading.spec.kind == "sonar" or len(s) != 1:
-        return RangerData(
-            reading.time, reading.ranges, 0.0, 0.0, min(x.range_min for x in s), max(x.range_max for x in s)
-        )
-    sen = s[0]
-    step = sen.fov / (sen.samples - 1) if sen.samples > 1 else 0.0
-    return RangerData(reading.time, reading.ranges, -sen.fov / 2 + sen.pose[2], step, sen.range_min, sen.range_max)
+    return SimDriver._ranger_msg(reading)
 
 
 @dataclass
