@@ -32,6 +32,7 @@ from typing import Any
 import zenoh
 
 from rsal import keys
+from rsal.client import query_rpc
 from rsal.keys import DeviceAddr
 from rsal.msgs import (
     Describe,
@@ -42,7 +43,6 @@ from rsal.msgs import (
     encode,
     error_reply,
     ok_reply,
-    parse_reply,
 )
 
 from .config import ConfigError, DriverConfig, ServerConfig
@@ -460,35 +460,14 @@ class DeviceServer:
         slot = next((s for s in self.slots if s.driver is slot_driver), None)
         if slot is None:
             raise ValueError("request() from a driver this server does not host")
-        key = keys.rpc_key(addr.without_key(), op)
-        got: list = []
-
-        def on_reply(reply) -> None:
-            if got:
-                return
-            try:
-                if reply.ok is not None:
-                    got.append(parse_reply(reply.ok.payload.to_bytes(), key=key))
-                else:
-                    parse_reply(reply.err.payload.to_bytes(), is_error=True, key=key)
-            except RpcError as e:
-                got.append(e)
-
-        def on_done() -> None:
-            if not got:
-                got.append(RpcError(ErrorCode.TIMEOUT, f"no reply within {timeout:g} s (is {addr} alive?)", key))
-            self.inbox.put(("reply", slot, addr, op, got[0]))
-
-        try:
-            self.session.get(
-                key,
-                zenoh.handlers.Callback(on_reply, on_done),
-                payload=encode(args or {}),
-                timeout=timeout,
-                target=zenoh.QueryTarget.BEST_MATCHING,
-            )
-        except Exception as e:
-            self.inbox.put(("reply", slot, addr, op, RpcError(ErrorCode.UNAVAILABLE, f"cannot send: {e}", key)))
+        query_rpc(
+            self.session,
+            addr.without_key(),
+            op,
+            args,
+            timeout,
+            lambda outcome: self.inbox.put(("reply", slot, addr, op, outcome)),
+        )
 
     def publish_event(self, addr: DeviceAddr, msg) -> None:
         dev = self.devices.get(addr.without_key() if addr.key else addr)

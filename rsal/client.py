@@ -22,9 +22,50 @@ from .keys import DeviceAddr
 from .msgs import ErrorCode, RpcError, encode, parse_reply
 from .transport import TransportArgs, open_session
 
-__all__ = ["Fabric", "Dispatcher"]
+__all__ = ["Fabric", "Dispatcher", "query_rpc"]
 
 log = logging.getLogger(__name__)
+
+
+def query_rpc(
+    session: zenoh.Session,
+    addr: DeviceAddr,
+    op: str,
+    args: dict | None,
+    timeout: float,
+    done: Callable[[dict | RpcError], None],
+) -> None:
+    """Query ``rsal/<addr>/rpc/<op>`` without blocking; ``done`` gets the reply map or an
+    :class:`RpcError` (the device's typed error, a transport error, or a timeout), exactly once, on
+    a Zenoh thread. The one implementation behind :meth:`Fabric.rpc_async` and the device server's
+    driver requests."""
+    key = keys.rpc_key(addr, op)
+    got: list = []
+
+    def on_reply(reply) -> None:
+        if got:
+            return
+        try:
+            if reply.ok is not None:
+                got.append(parse_reply(reply.ok.payload.to_bytes(), key=key))
+            else:
+                parse_reply(reply.err.payload.to_bytes(), is_error=True, key=key)  # raises
+        except RpcError as e:
+            got.append(e)
+
+    def on_done() -> None:
+        done(got[0] if got else RpcError(ErrorCode.TIMEOUT, f"no reply within {timeout:g} s (is {addr} alive?)", key))
+
+    try:
+        session.get(
+            key,
+            zenoh.handlers.Callback(on_reply, on_done),
+            payload=encode(args or {}),
+            timeout=timeout,
+            target=zenoh.QueryTarget.BEST_MATCHING,
+        )
+    except Exception as e:
+        done(RpcError(ErrorCode.UNAVAILABLE, f"cannot send the query: {e}", key))
 
 
 class Dispatcher:
@@ -121,42 +162,16 @@ class Fabric:
     def rpc_async(self, addr: DeviceAddr, op: str, args: dict | None = None, *, timeout: float = 5.0) -> Future:
         """Call ``rsal/<addr>/rpc/<op>``; the future resolves to the reply map or raises RpcError."""
         fut: Future = Future()
-        key = keys.rpc_key(addr, op)
-        got: list = []
 
-        def on_reply(reply) -> None:
-            if got:
-                return
-            try:
-                if reply.ok is not None:
-                    got.append(parse_reply(reply.ok.payload.to_bytes(), key=key))
-                else:
-                    parse_reply(reply.err.payload.to_bytes(), is_error=True, key=key)  # raises
-            except RpcError as e:
-                got.append(e)
-
-        def on_done() -> None:
+        def done(outcome) -> None:
             if fut.done():
                 return
-            if not got:
-                fut.set_exception(
-                    RpcError(ErrorCode.TIMEOUT, f"no reply within {timeout:g} s (is the device alive?)", key)
-                )
-            elif isinstance(got[0], Exception):
-                fut.set_exception(got[0])
+            if isinstance(outcome, RpcError):
+                fut.set_exception(outcome)
             else:
-                fut.set_result(got[0])
+                fut.set_result(outcome)
 
-        try:
-            self.session.get(
-                key,
-                zenoh.handlers.Callback(on_reply, on_done),
-                payload=encode(args or {}),
-                timeout=timeout,
-                target=zenoh.QueryTarget.BEST_MATCHING,
-            )
-        except Exception as e:
-            fut.set_exception(RpcError(ErrorCode.UNAVAILABLE, f"cannot send the query: {e}", key))
+        query_rpc(self.session, addr, op, args, timeout, done)
         return fut
 
     def rpc(self, addr: DeviceAddr, op: str, args: dict | None = None, *, timeout: float = 5.0) -> dict:
