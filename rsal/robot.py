@@ -245,6 +245,22 @@ class NavRobot(Robot):
             )
         base = [d for d in devs if isinstance(d, Position2d)]
         self.position2d = min(base, key=lambda d: d.index)  # the base itself, for stop()
+        #: the localizer's position2d (amcl: map frame, at the odometry's rate), if given
+        self.localized: Position2d | None = None
+        for d in base:
+            try:
+                if d.describe(timeout=2.0).geometry.get("frame") == "map":
+                    self.localized = d
+                    break
+            except Exception as e:  # a silent device is simply not used
+                log.debug("%s: no describe: %s", d.addr, e)
+
+    @property
+    def position(self) -> Position | None:
+        """The localized pose at the odometry's rate (amcl's position2d), else the localize device's."""
+        if self.localized is not None and self.localized.latest is not None:
+            return self.localized.position
+        return super().position
 
     def goto(self, goal: Position, timeout: float = 5.0) -> Future:
         self.goal = goal

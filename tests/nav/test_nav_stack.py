@@ -61,6 +61,9 @@ def test_goto_reaches_the_goal_around_the_box(procs, port, fabric_factory, plann
     assert math.hypot(truth.x - goal.x, truth.y - goal.y) < 0.6  # wavefront distance_epsilon 0.4 + drift
     est = robot.localize.get_position()
     assert math.hypot(est.x - truth.x, est.y - truth.y) < 0.3, (est, truth)
+    assert robot.localized is not None and robot.localized.addr.index == 2  # amcl's position2d, map frame
+    pos = robot.position
+    assert math.hypot(pos.x - truth.x, pos.y - truth.y) < 0.3, (pos, truth)
     assert server.alive()
 
 
