@@ -54,6 +54,7 @@ PARAMS = (
     "max_radius",
     "dist_penalty",
 )
+RADIUS_TRIES = 20  # describes of the local planner (every 0.25 s) before its radius is taken as it is
 IGNORED = ("cspace_file", "force_map_refresh", "alwayson", "add_rotational_waypoints")
 
 
@@ -101,6 +102,8 @@ class WavefrontDriver(Driver):
         self.goal_id = 0
         self._open = 0  # the goal being driven or stopped, not yet ended by a done/aborted event
         self.handover = Handover()
+        self._describe_tries = 0
+        self._describe_again: float | None = None
         self._status = "idle"
         self._message = ""
 
@@ -129,6 +132,11 @@ class WavefrontDriver(Driver):
             g = result.get("geometry", {}) or {}
             size = g.get("size")
             r = g.get("robot_radius")
+            if size is None and "base" in g and self._describe_tries < RADIUS_TRIES:
+                # a local planner that has not heard its base's size yet: ask again shortly
+                self._describe_tries += 1
+                self._describe_again = time.monotonic() + 0.25
+                return
             if isinstance(r, int | float) and r > 0:
                 self.robot_radius = float(r)
             elif isinstance(size, list) and len(size) >= 2:
@@ -192,6 +200,9 @@ class WavefrontDriver(Driver):
 
     # ------------------------------------------------------------------ the loop
     def update(self, now: float) -> None:
+        if self._describe_again is not None and now >= self._describe_again:
+            self._describe_again = None
+            self.request(self.out_addr, "describe")
         ex = self.exec
         if ex is not None and ex.status == "driving" and self.loc is not None:
             target, status = ex.update(self.loc, now)
