@@ -1,0 +1,348 @@
+"""Agent services: information channels on the key space ``svc/<service>/<sender_id>``.
+
+Thesis 3.6.1 and figure 3.10: every service "represents a dedicated information channel", sends to
+all subscribers, and "any subscriber can filter received messages". Here a service is a Zenoh key
+space: an agent publishes on ``svc/<service>/<its id>`` and every subscriber of ``svc/<service>/*``
+receives the message, filtered on the subscriber side. Every message carries ``sender``,
+``conversation`` (an id that replies repeat) and ``time`` (seconds since the epoch) next to its
+body, as one msgpack map whose schema is defined here and validated on decode (STYLE rule 4): a
+malformed sample is dropped with a rate-limited warning and never reaches an agent.
+
+``hello`` is the discovery service: every running agent answers queries on ``svc/hello/<agent_id>``
+with its id, class, robot and capabilities; :meth:`Services.who_is_there` collects the answers.
+
+Zenoh delivers samples and queries on its own threads; the callbacks here only decode and hand the
+result to the host's asyncio loop with ``loop.call_soon_threadsafe`` (STYLE rule 2).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import inspect
+import logging
+import re
+import time
+import uuid
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import zenoh
+
+from rsal.msgs import MessageError, decode_map, encode, get_float, get_str
+
+if TYPE_CHECKING:
+    from .runtime import AgentHost
+
+__all__ = [
+    "SVC_PREFIX",
+    "HELLO",
+    "Body",
+    "SendPosition",
+    "NewGoal",
+    "Hello",
+    "Message",
+    "SCHEMAS",
+    "Filter",
+    "Subscription",
+    "Services",
+    "match",
+    "service_key",
+    "check_name",
+    "decode_message",
+    "encode_message",
+]
+
+log = logging.getLogger(__name__)
+
+SVC_PREFIX = "svc"
+HELLO = "hello"
+_NAME = re.compile(r"^[A-Za-z0-9_.\-]+$")
+_ENVELOPE = ("sender", "conversation", "time")
+
+
+def check_name(kind: str, name: str) -> str:
+    """A service name or agent id must be one key chunk: letters, digits, ``_ . -``."""
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise ValueError(f"{kind} {name!r} must be one key chunk of letters, digits, '_', '.' or '-'")
+    return name
+
+
+def service_key(service: str, sender: str = "*") -> str:
+    """``svc/<service>/<sender>`` (``*`` for every sender)."""
+    return f"{SVC_PREFIX}/{service}/{sender}"
+
+
+# ---------------------------------------------------------------------------- message bodies
+class Body:
+    """Base of service message bodies: a frozen dataclass with ``to_dict``/``from_dict``."""
+
+    SERVICE: ClassVar[str] = ""
+
+    def to_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+
+
+@dataclass(frozen=True)
+class SendPosition(Body):
+    """``send_position``: the pose of ``robot`` (x, y in m, yaw in rad) in ``frame`` (e.g. ``map``,
+    ``odom``). The thesis's SendPositionService, which FollowAgent and MasterAgent subscribe to."""
+
+    robot: str
+    x: float
+    y: float
+    yaw: float
+    frame: str = "map"
+
+    SERVICE: ClassVar[str] = "send_position"
+
+    @classmethod
+    def from_dict(cls, m: dict) -> SendPosition:
+        return cls(
+            get_str(m, "robot"),
+            get_float(m, "x"),
+            get_float(m, "y"),
+            get_float(m, "yaw"),
+            get_str(m, "frame", "map"),
+        )
+
+
+@dataclass(frozen=True)
+class NewGoal(Body):
+    """``new_goal``: agent ``to`` should drive its robot to ``x``, ``y`` (m), ``yaw`` (rad) in the map
+    frame. The thesis's NewGoalService (DispersionAgent to NavAgents)."""
+
+    to: str
+    x: float
+    y: float
+    yaw: float = 0.0
+
+    SERVICE: ClassVar[str] = "new_goal"
+
+    @classmethod
+    def from_dict(cls, m: dict) -> NewGoal:
+        return cls(get_str(m, "to"), get_float(m, "x"), get_float(m, "y"), get_float(m, "yaw", 0.0))
+
+
+@dataclass(frozen=True)
+class Hello(Body):
+    """``hello``: who an agent is: its ``id``, agent ``cls`` (class name), the ``robot`` it controls
+    (``""`` for none) and its ``capabilities`` (service names, skills)."""
+
+    id: str
+    cls: str
+    robot: str = ""
+    capabilities: tuple[str, ...] = ()
+
+    SERVICE: ClassVar[str] = HELLO
+
+    @classmethod
+    def from_dict(cls, m: dict) -> Hello:
+        caps = m.get("capabilities", [])
+        if not isinstance(caps, list) or not all(isinstance(c, str) for c in caps):
+            raise MessageError("field 'capabilities' must be a list of strings")
+        return cls(get_str(m, "id"), get_str(m, "cls"), get_str(m, "robot", ""), tuple(caps))
+
+
+SCHEMAS: dict[str, type] = {b.SERVICE: b for b in (SendPosition, NewGoal, Hello)}
+
+
+@dataclass(frozen=True)
+class Message:
+    """One service message: the envelope and its ``body`` (a :class:`Body` for a service in
+    :data:`SCHEMAS`, else the remaining fields as a dict)."""
+
+    service: str
+    sender: str
+    conversation: str
+    time: float
+    body: Any = field(default_factory=dict)
+
+
+def encode_message(sender: str, body: Any, conversation: str, t: float) -> bytes:
+    d = body.to_dict() if hasattr(body, "to_dict") else dict(body)
+    clash = [k for k in _ENVELOPE if k in d]
+    if clash:
+        raise ValueError(f"message body must not use the envelope field(s) {', '.join(clash)}")
+    return encode({"sender": sender, "conversation": conversation, "time": t, **d})
+
+
+def decode_message(service: str, key_sender: str, data: bytes) -> Message:
+    """Validate one sample of ``svc/<service>/<key_sender>``; raises :class:`MessageError`."""
+    m = decode_map(data)
+    sender = get_str(m, "sender")
+    if sender != key_sender:
+        raise MessageError(f"field 'sender' = {sender!r} does not match the key's sender {key_sender!r}")
+    conversation = get_str(m, "conversation")
+    t = get_float(m, "time", lo=0.0)
+    rest = {k: v for k, v in m.items() if k not in _ENVELOPE}
+    schema = SCHEMAS.get(service)
+    body = schema.from_dict(rest) if schema is not None else rest
+    return Message(service, sender, conversation, t, body)
+
+
+# ---------------------------------------------------------------------------- filters
+Filter = Callable[[Message], bool]
+Callback = Callable[[Message], Awaitable[None] | None]
+
+
+def match(**fields: Any) -> Filter:
+    """A filter accepting messages whose envelope or body fields equal the given values, e.g.
+    ``match(robot="r1")`` or ``match(to="nav1")``; a value may also be a set of accepted values."""
+
+    def accept(msg: Message) -> bool:
+        for k, want in fields.items():
+            if k in _ENVELOPE:
+                v = getattr(msg, k)
+            elif isinstance(msg.body, dict):
+                v = msg.body.get(k)
+            else:
+                v = getattr(msg.body, k, None)
+            if not (v in want if isinstance(want, (set, frozenset)) else v == want):
+                return False
+        return True
+
+    return accept
+
+
+class _RateLimited:
+    """Warn at most once per ``interval`` seconds per topic; counts what it held back."""
+
+    def __init__(self, interval: float = 5.0):
+        self.interval = interval
+        self._last: dict[str, float] = {}
+        self._held: dict[str, int] = {}
+
+    def warn(self, topic: str, text: str) -> None:
+        now = time.monotonic()
+        if now - self._last.get(topic, -1e9) >= self.interval:
+            held = self._held.pop(topic, 0)
+            self._last[topic] = now
+            log.warning("%s%s", text, f" ({held} similar message(s) suppressed)" if held else "")
+        else:
+            self._held[topic] = self._held.get(topic, 0) + 1
+
+
+class Subscription:
+    """A subscriber to one service; :meth:`close` undeclares it (the owning agent does on kill)."""
+
+    def __init__(self, services: Services, service: str, callback: Callback, flt: Filter | None, owner: str):
+        self.service = service
+        self.owner = owner
+        self._services = services
+        self._callback = callback
+        self._filter = flt
+        self.received = 0  # messages passed to the callback
+        self._sub = services.session.declare_subscriber(service_key(service), self._on_sample)
+        self.closed = False
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:  # a Zenoh thread: decode, then hand over
+        key = str(sample.key_expr)
+        try:
+            msg = decode_message(self.service, key.rsplit("/", 1)[-1], sample.payload.to_bytes())
+        except MessageError as e:
+            self._services.dropped += 1
+            self._services.warn(f"bad:{key}", f"dropped a malformed message on {key}: {e}")
+            return
+        self._services.call_soon(self._deliver, msg)
+
+    def _deliver(self, msg: Message) -> None:  # the host's loop
+        if self.closed:
+            return
+        try:
+            if self._filter is not None and not self._filter(msg):
+                return
+            self.received += 1
+            out = self._callback(msg)
+            if inspect.isawaitable(out):
+                self._services.host.spawn(out, f"{self.owner}: {self.service} callback")
+        except Exception:
+            log.exception("%s: callback for %s from %s failed", self.owner, self.service, msg.sender)
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            try:
+                self._sub.undeclare()
+            except Exception:  # the session may already be closed
+                pass
+
+
+class Services:
+    """Publishing, subscribing and ``hello`` for the agents of one :class:`AgentHost`."""
+
+    def __init__(self, host: AgentHost):
+        self.host = host
+        self.session: zenoh.Session = host.session
+        self.dropped = 0
+        self._warn = _RateLimited()
+
+    def warn(self, topic: str, text: str) -> None:
+        self._warn.warn(topic, text)
+
+    def call_soon(self, fn: Callable, *args: Any) -> None:
+        """Run ``fn(*args)`` on the host's loop (safe from any thread; ignored once the loop closed)."""
+        try:
+            self.host.loop.call_soon_threadsafe(fn, *args)
+        except RuntimeError:  # loop closed during shutdown
+            pass
+
+    def publish(self, service: str, body: Any, *, sender: str, conversation: str | None = None) -> str:
+        """Put ``body`` on ``svc/<service>/<sender>``; returns the conversation id used."""
+        check_name("service", service)
+        check_name("agent id", sender)
+        schema = SCHEMAS.get(service)
+        if schema is not None and not isinstance(body, schema):
+            raise TypeError(f"service {service!r} carries {schema.__name__}, not {type(body).__name__}")
+        conv = conversation or uuid.uuid4().hex[:16]
+        self.session.put(service_key(service, sender), encode_message(sender, body, conv, time.time()))
+        return conv
+
+    def subscribe(
+        self, service: str, callback: Callback, flt: Filter | None = None, *, owner: str = ""
+    ) -> Subscription:
+        """Receive every valid message on ``svc/<service>/*`` that ``flt`` accepts; ``callback`` (plain
+        or ``async``) runs on the host's loop."""
+        check_name("service", service)
+        return Subscription(self, service, callback, flt, owner)
+
+    # ------------------------------------------------------------------ hello
+    def declare_hello(self, hello: Hello) -> zenoh.Queryable:
+        key = service_key(HELLO, hello.id)
+        return self.session.declare_queryable(key, lambda q: self.call_soon(self._answer_hello, q, key, hello))
+
+    def _answer_hello(self, query: zenoh.Query, key: str, hello: Hello) -> None:
+        try:
+            query.reply(key, encode_message(hello.id, hello, uuid.uuid4().hex[:16], time.time()))
+        except Exception as e:  # a closed query or session must not stop the host
+            self.warn(f"hello:{key}", f"could not answer hello on {key}: {type(e).__name__}: {e}")
+        finally:
+            try:
+                query.drop()
+            except Exception:
+                pass
+
+    async def who_is_there(self, timeout: float = 1.0) -> list[Hello]:
+        """Query ``svc/hello/*`` and return every valid answer (sorted by id) within ``timeout`` s."""
+        loop = self.host.loop
+        answers: list[Hello] = []
+        done: asyncio.Future = loop.create_future()
+
+        def on_reply(reply: zenoh.Reply) -> None:  # a Zenoh thread
+            if reply.ok is None:
+                return
+            key = str(reply.ok.key_expr)
+            try:
+                msg = decode_message(HELLO, key.rsplit("/", 1)[-1], reply.ok.payload.to_bytes())
+            except MessageError as e:
+                self.dropped += 1
+                self.warn(f"bad:{key}", f"dropped a malformed hello answer from {key}: {e}")
+                return
+            self.call_soon(answers.append, msg.body)
+
+        def on_done() -> None:
+            self.call_soon(lambda: done.done() or done.set_result(None))
+
+        self.session.get(service_key(HELLO), zenoh.handlers.Callback(on_reply, on_done), timeout=timeout)
+        await done
+        return sorted(answers, key=lambda h: h.id)
