@@ -131,3 +131,32 @@ def fabric_factory():
     yield make
     for f in made:
         f.close()
+
+
+class _Entity:
+    def undeclare(self) -> None:
+        pass
+
+
+class FakeSession:
+    """Just enough of a Zenoh session for ``DeviceServer.start()`` without a network: every
+    declaration succeeds and does nothing; the liveliness tokens declared are recorded."""
+
+    def __init__(self) -> None:
+        self.tokens: list[str] = []
+
+    def declare_publisher(self, key, **kw):
+        return _Entity()
+
+    def declare_subscriber(self, key, handler, **kw):
+        return _Entity()
+
+    def declare_queryable(self, key, handler, **kw):
+        return _Entity()
+
+    def liveliness(self):
+        return self
+
+    def declare_token(self, key):
+        self.tokens.append(str(key))
+        return _Entity()

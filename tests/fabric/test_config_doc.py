@@ -17,12 +17,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from conftest import MAPS, ROOT, free_port, rsal_cmd
 
 import mrs_bridge.drivers  # noqa: F401  (registers the built-in drivers)
 from mrs_bridge.cli import sim_config
 from mrs_bridge.config import parse_config
 from mrs_bridge.server import DeviceServer
+from tests.conftest import MAPS, ROOT, FakeSession, free_port, rsal_cmd
 
 DOC = ROOT / "docs" / "configuration.md"
 BLOCK = re.compile(r"^```toml\n(.*?)^```\n", re.S | re.M)
@@ -64,34 +64,6 @@ def examples() -> list[Example]:
 EXAMPLES = examples()
 GOOD = [e for e in EXAMPLES if e.kind == "config"]
 BAD = [e for e in EXAMPLES if e.kind == "bad-config"]
-
-
-class _Entity:
-    def undeclare(self) -> None:
-        pass
-
-
-class FakeSession:
-    """Just enough of a Zenoh session for DeviceServer.start(); records the tokens declared."""
-
-    def __init__(self) -> None:
-        self.tokens: list[str] = []
-
-    def declare_publisher(self, key, **kw):
-        return _Entity()
-
-    def declare_subscriber(self, key, handler, **kw):
-        return _Entity()
-
-    def declare_queryable(self, key, handler, **kw):
-        return _Entity()
-
-    def liveliness(self):
-        return self
-
-    def declare_token(self, key):
-        self.tokens.append(str(key))
-        return _Entity()
 
 
 def load(ex: Example):

@@ -26,7 +26,7 @@ import pytest
 import mrs_bridge.drivers  # noqa: F401  (registers the built-in drivers)
 from mrs_bridge.config import ConfigError, parse_config
 from mrs_bridge.server import DeviceServer
-from tests.conftest import MAPS, ROOT, Proc, free_port, rsal_cmd, wait_until
+from tests.conftest import MAPS, ROOT, FakeSession, Proc, free_port, rsal_cmd, wait_until
 
 NAV = ROOT / "docs" / "navigation.md"
 CONF = ROOT / "docs" / "configuration.md"
@@ -54,30 +54,6 @@ def toml_blocks(path: Path) -> list[tuple[str, str, int]]:
 
 def load(path: str, block: str):
     return parse_config(block, source=path, base_dir=(ROOT / path).parent)
-
-
-class _Entity:
-    def undeclare(self) -> None:
-        pass
-
-
-class FakeSession:
-    """Just enough of a Zenoh session for DeviceServer.start()."""
-
-    def declare_publisher(self, key, **kw):
-        return _Entity()
-
-    def declare_subscriber(self, key, handler, **kw):
-        return _Entity()
-
-    def declare_queryable(self, key, handler, **kw):
-        return _Entity()
-
-    def liveliness(self):
-        return self
-
-    def declare_token(self, key):
-        return _Entity()
 
 
 def start(cfg) -> None:
