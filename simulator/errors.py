@@ -12,7 +12,13 @@ Every message is one line that names the place and says how to fix it; command-l
 
 from __future__ import annotations
 
-__all__ = ["SimulatorError", "WorldFileError", "ModelError"]
+import logging
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+__all__ = ["SimulatorError", "WorldFileError", "ModelError", "as_world_file_errors"]
+
+log = logging.getLogger(__name__)
 
 
 class SimulatorError(Exception):
@@ -32,3 +38,21 @@ class WorldFileError(SimulatorError):
 
 class ModelError(SimulatorError):
     """An operation on a model that does not exist or does not support it."""
+
+
+@contextmanager
+def as_world_file_errors(display: str, too_deep: str) -> Iterator[None]:
+    """Every failure while building a world from ``display`` becomes one :class:`WorldFileError`:
+    too deep nesting says ``too_deep``; anything unexpected (a loader bug) is still reported as a
+    world file problem, with the details in the debug log, never as a traceback."""
+    try:
+        yield
+    except WorldFileError:
+        raise
+    except RecursionError:
+        raise WorldFileError(too_deep, display) from None
+    except Exception as e:
+        log.debug("internal error loading %s", display, exc_info=True)
+        raise WorldFileError(
+            f"internal error while loading ({type(e).__name__}: {e}); please report it", display
+        ) from e

@@ -55,7 +55,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import WorldFileError
+from .errors import WorldFileError, as_world_file_errors
 from .spec import (
     BlobfinderSpec,
     FloorplanSpec,
@@ -1188,15 +1188,6 @@ def load_stage_world(path: str | os.PathLike[str], *, seed: int | None = None) -
     """
     display = os.fspath(path)
     loader = _StageLoader(display)
-    try:
+    with as_world_file_errors(display, "models or defines nested too deeply"):
         loader.load_file(Path(display), display, None)
         return loader.build(seed)
-    except WorldFileError:
-        raise
-    except RecursionError:
-        raise WorldFileError("models or defines nested too deeply", display) from None
-    except Exception as e:  # a bug in this loader: still report it as a world file problem
-        log.debug("internal error loading %s", display, exc_info=True)
-        raise WorldFileError(
-            f"internal error while loading ({type(e).__name__}: {e}); please report it", display
-        ) from e

@@ -42,7 +42,7 @@ from typing import Any
 
 import yaml
 
-from .errors import WorldFileError
+from .errors import WorldFileError, as_world_file_errors
 from .presets import DEVICE_PRESETS, OBJECT_PRESETS, ROBOT_PRESETS
 from .spec import (
     BlobfinderSpec,
@@ -634,14 +634,5 @@ def load_yaml_world(path: str | os.PathLike[str], *, seed: int | None = None) ->
     world = _YamlWorld(display)
     for key, line in loader.duplicates:
         world.warn(line, f"duplicate key '{key}': the last one wins")
-    try:
+    with as_world_file_errors(display, "YAML nested too deeply"):
         return world.build(doc, seed)
-    except WorldFileError:
-        raise
-    except RecursionError:
-        raise WorldFileError("YAML nested too deeply", display) from None
-    except Exception as e:  # a bug in this loader: still report it as a world file problem
-        log.debug("internal error loading %s", display, exc_info=True)
-        raise WorldFileError(
-            f"internal error while loading ({type(e).__name__}: {e}); please report it", display
-        ) from e
