@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import zenoh
 
-from rsal.msgs import MessageError, decode_map, encode, get_float, get_str
+from rsal.msgs import MessageError, decode_map, encode, get_bool, get_float, get_str
 
 if TYPE_CHECKING:
     from .runtime import AgentHost
@@ -41,6 +41,7 @@ __all__ = [
     "SendPosition",
     "NewGoal",
     "Hello",
+    "Outcome",
     "Message",
     "SCHEMAS",
     "Filter",
@@ -144,7 +145,33 @@ class Hello(Body):
         return cls(get_str(m, "id"), get_str(m, "cls"), get_str(m, "robot", ""), tuple(caps))
 
 
-SCHEMAS: dict[str, type] = {b.SERVICE: b for b in (SendPosition, NewGoal, Hello)}
+@dataclass(frozen=True)
+class Outcome(Body):
+    """``outcome``: something a scenario counts happened — ``event`` (e.g. ``caught``, ``delivered``,
+    ``arrived``, ``verdict``) about ``subject`` (the prey robot, the blob, the robot), with one
+    human-readable line ``text``. ``ok`` false reports a failure; ``final`` true ends the scenario
+    run with ``ok`` as its result (``rsal run`` listens on ``svc/outcome/*``)."""
+
+    event: str
+    subject: str
+    text: str
+    ok: bool = True
+    final: bool = False
+
+    SERVICE: ClassVar[str] = "outcome"
+
+    @classmethod
+    def from_dict(cls, m: dict) -> Outcome:
+        return cls(
+            get_str(m, "event"),
+            get_str(m, "subject"),
+            get_str(m, "text"),
+            get_bool(m, "ok", True),
+            get_bool(m, "final", False),
+        )
+
+
+SCHEMAS: dict[str, type] = {b.SERVICE: b for b in (SendPosition, NewGoal, Hello, Outcome)}
 
 
 @dataclass(frozen=True)
