@@ -10,6 +10,7 @@ or on another server. The server owns all Zenoh entities; a driver only implemen
 - ``on_rpc(addr, op, args)`` returning a result map; raise ``MessageError``/``OutOfRange``/
   :class:`~rsal.msgs.RpcError` for typed error replies;
 - ``geometry(addr)`` and ``ops(addr)`` for ``rpc/describe``; ``shutdown()`` to stop motors;
+- ``set_online(flag)`` withdraws/re-declares the devices' tokens while hardware is silent;
 - ``send(addr, msg)`` commands a required device; ``request(addr, op, args)`` calls its rpc without
   blocking and the answer arrives in ``on_reply(addr, op, result, error)``.
 
@@ -60,6 +61,9 @@ class Driver:
     #: message type names for describe
     data_types: ClassVar[dict[str, str]] = {}
     cmd_types: ClassVar[dict[str, str]] = {}
+    #: whether the devices' liveliness tokens are declared (hardware drivers start ``False`` and
+    #: call :meth:`set_online` when the device answers)
+    online: bool = True
 
     def __init__(self, cfg: DriverConfig, server: DeviceServer):
         self.cfg = cfg
@@ -105,6 +109,11 @@ class Driver:
     # ------------------------------------------------------------------ helpers
     def all_ops(self, addr: DeviceAddr) -> list[str]:
         return ["describe", *self.ops(addr)]
+
+    def set_online(self, online: bool) -> None:
+        """Hardware drivers: withdraw every provided device's token while the device does not
+        answer (``False``) and declare them again when it does (``True``)."""
+        self.server.set_online(self, online)
 
     def publish(self, addr: DeviceAddr, msg) -> None:
         self.server.publish(addr, msg)

@@ -271,6 +271,24 @@ class DeviceServer:
                 return self._call(slot, fn, *args)
         return None
 
+    def set_online(self, driver: Driver, online: bool) -> None:
+        """Withdraw (``online`` false) or re-declare the liveliness tokens of ``driver``'s devices,
+        for hardware that stops answering and comes back (clients see the devices lost, then found).
+        Publishers, commands and rpcs stay declared. Scheduler thread only."""
+        driver.online = bool(online)
+        for a in driver.cfg.provides:
+            dev = self.devices.get(a.without_key())
+            if dev is None:
+                continue
+            if online and dev.token is None:
+                dev.token = self.session.liveliness().declare_token(keys.device_key(dev.addr))
+            elif not online and dev.token is not None:
+                try:
+                    dev.token.undeclare()
+                except Exception:  # already closed with the session
+                    pass
+                dev.token = None
+
     def _fail(self, slot: _Slot, exc: Exception | None) -> None:
         if slot.state == "running":
             try:
@@ -326,7 +344,8 @@ class DeviceServer:
         dev.rpc_q = s.declare_queryable(
             f"{keys.PREFIX}/{addr.path}/rpc/*", lambda q, a=addr: self.inbox.put(("rpc", a, q))
         )
-        dev.token = s.liveliness().declare_token(keys.device_key(addr))
+        if slot.driver.online:  # hardware not answering yet: its token comes with set_online(True)
+            dev.token = s.liveliness().declare_token(keys.device_key(addr))
         self.devices[addr] = dev
 
     # ------------------------------------------------------------------ inbound
