@@ -195,9 +195,7 @@ def test_noise_and_bad_check_characters_are_dropped_and_counted(tmp_path, procs,
     wait_until(lambda: laser.rpc("status", timeout=2.0)["dropped"] >= 3, 10, "noise frames to be counted")
     emu.set_mode("badsum")
     dropped = laser.rpc("status", timeout=2.0)["dropped"]
-    wait_until(
-        lambda: laser.rpc("status", timeout=2.0)["dropped"] >= dropped + 3, 10, "bad scans to be counted"
-    )
+    wait_until(lambda: laser.rpc("status", timeout=2.0)["dropped"] >= dropped + 3, 10, "bad scans to be counted")
     status = laser.rpc("status", timeout=2.0)
     assert status["online"] and status["published"] > 0
     seen = laser.wait_for_data(5.0)  # the good scans still come through
