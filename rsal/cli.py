@@ -1,6 +1,6 @@
 """The ``rsal`` command line.
 
-``rsal`` itself knows the commands of the RSAL layer (``ls``, ``goto``); the other layers add theirs through
+``rsal`` itself knows the commands of the RSAL layer (``ls``, ``goto``, ``router``); the other layers add theirs through
 the ``rsal.commands`` entry-point group (``serve`` and ``sim`` from ``mrs_bridge``, ``demo`` from
 ``agents``), so this package never imports the layers above or beside it. Each entry point is a
 function ``register(subparsers)`` that adds a sub-command whose ``func(args) -> int`` runs it.
@@ -185,6 +185,9 @@ def build_parser() -> argparse.ArgumentParser:
     go.add_argument("--progress", type=float, default=2.0, help="seconds between progress lines (default 2)")
     add_transport_args(go)
     go.set_defaults(func=_cmd_goto)
+    from .router import register as register_router
+
+    register_router(sub)
     for ep in sorted(entry_points(group="rsal.commands"), key=lambda e: e.name):
         try:
             ep.load()(sub)

@@ -25,7 +25,7 @@ DEFAULT_ENDPOINT = os.environ.get("RSAL_ENDPOINT", "tcp/127.0.0.1:7447")
 
 @dataclass
 class TransportArgs:
-    mode: str = "peer"
+    mode: str | None = None  # None: the config file's mode, else peer
     connect: list[str] = field(default_factory=list)
     listen: list[str] = field(default_factory=list)
     config: str | None = None
@@ -34,7 +34,7 @@ class TransportArgs:
     @classmethod
     def from_namespace(cls, ns: argparse.Namespace) -> TransportArgs:
         return cls(
-            mode=getattr(ns, "mode", None) or "peer",
+            mode=getattr(ns, "mode", None),
             connect=list(getattr(ns, "connect", None) or []),
             listen=list(getattr(ns, "listen", None) or []),
             config=getattr(ns, "config", None),
@@ -45,7 +45,12 @@ class TransportArgs:
 def add_transport_args(p: argparse.ArgumentParser) -> None:
     """The zenoh examples' transport flags."""
     g = p.add_argument_group("transport (Zenoh)")
-    g.add_argument("--mode", "-m", choices=("peer", "client", "router"), help="Zenoh mode (default peer)")
+    g.add_argument(
+        "--mode",
+        "-m",
+        choices=("peer", "client", "router"),
+        help="Zenoh mode (default: the --config file's, else peer)",
+    )
     g.add_argument(
         "--connect",
         "-e",
@@ -89,7 +94,8 @@ def make_config(args: TransportArgs | None = None, *, server: bool = False) -> z
     else:
         conf = zenoh.Config()
         conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("mode", json.dumps(a.mode))
+    if a.mode or not a.config:
+        conf.insert_json5("mode", json.dumps(a.mode or "peer"))
     listen = list(a.listen)
     connect = list(a.connect)
     if not a.config and not listen and not connect:
