@@ -39,6 +39,10 @@ __all__ = [
     "GripperData",
     "GripperCmd",
     "PowerData",
+    "DioData",
+    "DioCmd",
+    "ActArrayData",
+    "ACTUATOR_STATES",
     "SimulationData",
     "MapData",
     "GoalCmd",
@@ -425,6 +429,63 @@ class PowerData(_Msg):
             get_float(m, "volts"),
             get_float(m, "percent", lo=0, hi=100),
             get_bool(m, "charging", False),
+        )
+
+
+# ---------------------------------------------------------------------------- dio / actarray
+@dataclass(frozen=True)
+class DioData(_Msg):
+    """dio ``data``: ``count`` digital inputs as the bit field ``bits`` (input i is bit i) and the
+    current digital outputs ``outputs``. Player's ``player_dio_data``."""
+
+    t: float
+    count: int
+    bits: int
+    outputs: int = 0
+
+    @classmethod
+    def from_dict(cls, m: dict) -> DioData:
+        count = get_int(m, "count", lo=0, hi=32)
+        hi = (1 << count) - 1
+        return cls(get_float(m, "t"), count, get_int(m, "bits", lo=0, hi=hi), get_int(m, "outputs", 0, lo=0, hi=0xFFFF))
+
+
+@dataclass(frozen=True)
+class DioCmd(_Msg):
+    """dio ``cmd``: set the digital outputs selected by ``mask`` to the matching bits of ``bits``."""
+
+    bits: int
+    mask: int = 0xFF
+
+    @classmethod
+    def from_dict(cls, m: dict) -> DioCmd:
+        return cls(get_int(m, "bits", lo=0, hi=0xFF), get_int(m, "mask", 0xFF, lo=0, hi=0xFF))
+
+
+ACTUATOR_STATES = ("idle", "moving", "braked", "stalled")
+
+
+@dataclass(frozen=True)
+class ActArrayData(_Msg):
+    """actarray ``data``: per actuator its position (m for a linear joint, rad for a rotary one),
+    speed and state (idle, moving, braked, stalled). Player's ``player_actarray_data``."""
+
+    t: float
+    positions: tuple[float, ...]
+    speeds: tuple[float, ...]
+    states: tuple[str, ...]
+
+    @classmethod
+    def from_dict(cls, m: dict) -> ActArrayData:
+        pos, spd, st = (_need(m, k, True) for k in ("positions", "speeds", "states"))
+        if not all(isinstance(v, (list, tuple)) for v in (pos, spd, st)) or not len(pos) == len(spd) == len(st):
+            raise MessageError("fields 'positions', 'speeds' and 'states' must be lists of the same length")
+        n = len(pos)
+        return cls(
+            get_float(m, "t"),
+            get_vec(m, "positions", n),
+            get_vec(m, "speeds", n),
+            tuple(get_str({"state": s}, "state", choices=ACTUATOR_STATES) for s in st),
         )
 
 

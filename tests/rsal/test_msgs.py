@@ -10,9 +10,12 @@ import pytest
 
 from rsal import msgs
 from rsal.msgs import (
+    ActArrayData,
     BlobData,
     BlobfinderData,
     Describe,
+    DioCmd,
+    DioData,
     ErrorCode,
     GoalCmd,
     GripperCmd,
@@ -66,6 +69,9 @@ SIMPLE = [
     GripperData(1.0, "closed", "up", 3, 1, "bin1"),
     GripperData(1.0, "opening", "lowering", 0, 0, None),
     PowerData(5.0, 12.4, 87.5, charging=True),
+    DioData(2.0, 8, 0b1010_0101, 0b11),
+    DioCmd(0b01, mask=0b11),
+    ActArrayData(2.0, (1.0,), (0.0,), ("idle",)),
     SimulationData(100.0, 1000, False, 9.8),
     GoalCmd((1.0, -2.0, 0.5)),
     Hypothesis(0.75, (1.0, 2.0, 0.1), (0.01, 0, 0, 0, 0.02, 0, 0, 0, 0.003)),
