@@ -1,0 +1,149 @@
+"""The fabric across hosts: network namespaces made by the test (tests/netns.py) stand in for a
+simulator host, two robot hosts and an agent host on one LAN.
+
+- sim host: ``rsal sim maps/hunt.world`` — the robots' bases and lasers;
+- robot host 1 and 2: ``rsal serve`` with r1's / r2's navigation stack (deploy/r0-nav.toml for
+  that robot: mapfile, vfh, amcl, wavefront), requiring their base and laser over the network;
+- agent host: a watcher of the whole fabric (tests/fabric/netwatch.py) and ``rsal goto`` sending
+  r1 across the floor.
+
+Then robot host 2's cable is pulled: r2's devices are reported lost within the configured Zenoh
+lease (plus the keep-alive slack), while r1 keeps driving and r1's devices stay; when the cable is
+back, r2's devices return without any process being restarted. Skipped, with the reason, where
+namespaces cannot be made (not root, no iproute2).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+import time
+
+import pytest
+
+from tests.conftest import MAPS, ROOT, Proc, rsal_cmd, wait_until
+from tests.netns import Lan, unavailable
+
+why = unavailable()
+pytestmark = pytest.mark.skipif(why is not None, reason=f"no network namespaces here: {why}")
+
+LEASE_MS = 3000
+TUNING = ["--cfg", f"transport/link/tx/lease:{LEASE_MS}", "--cfg", "transport/link/tx/keep_alive:4"]
+WORLD = MAPS / "hunt.world"
+POSES = {"r1": (-14.0, 1.75, 0.0), "r2": (10.0, 1.75, 180.0)}  # maps/hunt.world
+
+
+def nav_config(tmp_path, robot: str) -> str:
+    """deploy/r0-nav.toml for ``robot``: its node, start pose and an absolute map path."""
+    text = (ROOT / "deploy" / "r0-nav.toml").read_text()
+    text = text.replace('node = "r0"', f'node = "{robot}"').replace("r0:", f"{robot}:")
+    text = text.replace('"../maps/floor.png"', json.dumps(str(MAPS / "floor.png")))
+    x, y, a = POSES[robot]
+    text = re.sub(r"init_pose = \[[^\]]*\]", f"init_pose = [{x}, {y}, {a}]", text)
+    path = tmp_path / f"{robot}-nav.toml"
+    path.write_text(text)
+    return str(path)
+
+
+class Watch:
+    """The JSON lines of tests/fabric/netwatch.py, read as they come."""
+
+    def __init__(self, proc: Proc):
+        self.proc = proc
+
+    def events(self) -> list[dict]:
+        out = []
+        for line in self.proc.output().splitlines():
+            if line.startswith("{"):
+                try:
+                    out.append(json.loads(line))
+                except json.JSONDecodeError:
+                    pass  # a line being written
+        return out
+
+    def alive(self) -> set[str]:
+        devs: set[str] = set()
+        for e in self.events():
+            if "join" in e:
+                devs.add(e["join"])
+            elif "leave" in e:
+                devs.discard(e["leave"])
+        return devs
+
+    def pose(self, addr: str) -> list[float] | None:
+        for e in reversed(self.events()):
+            if "poses" in e and addr in e["poses"]:
+                return e["poses"][addr]
+        return None
+
+
+@pytest.fixture
+def lan():
+    net = Lan()
+    yield net
+    net.close()
+
+
+def test_a_robot_host_cut_off_is_lost_the_others_continue_and_it_rejoins(lan, tmp_path):
+    sim_ip = lan.host("sim")
+    r1_ip = lan.host("robot1")
+    r2_ip = lan.host("robot2")
+    lan.host("agents")
+    sim_ep = f"tcp/{sim_ip}:7447"
+    procs: list[Proc] = []
+
+    def start(host: str, argv: list[str]) -> Proc:
+        p = Proc(lan.cmd(host, argv))
+        procs.append(p)
+        return p
+
+    try:
+        start("sim", rsal_cmd("sim", str(WORLD), "--no-map", "--listen", sim_ep, *TUNING))
+        for host, robot, ip in (("robot1", "r1", r1_ip), ("robot2", "r2", r2_ip)):
+            start(
+                host,
+                rsal_cmd(
+                    "serve", nav_config(tmp_path, robot), "--connect", sim_ep, "--listen", f"tcp/{ip}:7447", *TUNING
+                ),
+            )
+        watch = Watch(
+            start(
+                "agents",
+                [sys.executable, str(ROOT / "tests" / "fabric" / "netwatch.py"), "--connect", sim_ep, *TUNING],
+            )
+        )
+        stack = {f"{r}:{d}" for r in ("r1", "r2") for d in ("planner:0", "localize:0", "position2d:1", "position2d:2")}
+        wait_until(lambda: stack <= watch.alive(), 120, "both robot hosts' navigation stacks across the LAN")
+
+        # r1 drives east along the corridor, planned on robot host 1, commanded from the agent host.
+        goto = start("agents", rsal_cmd("goto", "r1", "-4.0", "1.75", "--connect", sim_ep, "--timeout", "300"))
+        start_pose = watch.pose("r1:position2d:2")
+        wait_until(lambda: watch.pose("r1:position2d:2") != start_pose, 60, "r1 to start moving")
+
+        lan.cut("robot2")
+        t_cut = time.monotonic()
+        r2_stack = {a for a in stack if a.startswith("r2:")}
+        wait_until(
+            lambda: not (r2_stack & watch.alive()),
+            LEASE_MS / 1000 * 2 + 5,
+            "robot host 2's devices to be reported lost after its link went down",
+        )
+        lost_after = time.monotonic() - t_cut
+        assert {a for a in stack if a.startswith("r1:")} <= watch.alive(), "robot host 1's devices were lost too"
+        p1 = watch.pose("r1:position2d:2")
+        wait_until(
+            lambda: (q := watch.pose("r1:position2d:2")) is not None and abs(q[0] - p1[0]) > 0.2,
+            30,
+            "r1 to keep driving while robot host 2 is cut off",
+        )
+
+        lan.restore("robot2")
+        wait_until(lambda: r2_stack <= watch.alive(), 60, "robot host 2's devices to come back without a restart")
+        assert all(p.alive() for p in procs if p is not goto), "a process died: " + "\n".join(
+            p.output()[-500:] for p in procs if not p.alive()
+        )
+        print(f"r2 lost {lost_after:.1f} s after the cut (lease {LEASE_MS / 1000:g} s)")
+    finally:
+        for p in procs:
+            p.close()
