@@ -1,7 +1,7 @@
 """The fabric across hosts: network namespaces made by the test (tests/netns.py) stand in for a
 simulator host, two robot hosts and an agent host on one LAN.
 
-- sim host: ``rsal sim maps/hunt.world`` — the robots' bases and lasers;
+- sim host: ``rsal sim maps/floor.world`` — the robots' bases and lasers;
 - robot host 1 and 2: ``rsal serve`` with r1's / r2's navigation stack (deploy/r0-nav.toml for
   that robot: mapfile, vfh, amcl, wavefront), requiring their base and laser over the network;
 - agent host: a watcher of the whole fabric (tests/fabric/netwatch.py) and ``rsal goto`` sending
@@ -30,8 +30,8 @@ pytestmark = pytest.mark.skipif(why is not None, reason=f"no network namespaces 
 
 LEASE_MS = 3000
 TUNING = ["--cfg", f"transport/link/tx/lease:{LEASE_MS}", "--cfg", "transport/link/tx/keep_alive:4"]
-WORLD = MAPS / "hunt.world"
-POSES = {"r1": (-14.0, 1.75, 0.0), "r2": (10.0, 1.75, 180.0)}  # maps/hunt.world
+WORLD = MAPS / "floor.world"
+POSES = {"r1": (-5.0, 1.75, 0.0), "r2": (-14.0, 5.5, 180.0)}  # maps/floor.world
 
 
 def nav_config(tmp_path, robot: str) -> str:
@@ -117,7 +117,7 @@ def test_a_robot_host_cut_off_is_lost_the_others_continue_and_it_rejoins(lan, tm
         wait_until(lambda: stack <= watch.alive(), 120, "both robot hosts' navigation stacks across the LAN")
 
         # r1 drives east along the corridor, planned on robot host 1, commanded from the agent host.
-        goto = start("agents", rsal_cmd("goto", "r1", "-4.0", "1.75", "--connect", sim_ep, "--timeout", "300"))
+        goto = start("agents", rsal_cmd("goto", "r1", "4.0", "1.75", "--connect", sim_ep, "--timeout", "300"))
         start_pose = watch.pose("r1:position2d:2")
         wait_until(lambda: watch.pose("r1:position2d:2") != start_pose, 60, "r1 to start moving")
 
