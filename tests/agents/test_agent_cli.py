@@ -75,7 +75,7 @@ def test_unknown_class_is_one_line_error(procs):
     out = p.output().strip()
     assert p.p.returncode == 1
     assert out.splitlines() == [out]
-    assert "unknown agent class 'HunterAgent'" in out and "EscapeAgent, WallfollowAgent" in out
+    assert "unknown agent class 'HunterAgent'" in out and "EscapeAgent" in out and "WallfollowAgent" in out
 
 
 def test_robot_not_found_is_one_line_error(procs):

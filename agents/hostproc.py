@@ -1,0 +1,338 @@
+"""An agent-host process: one Zenoh session, one :class:`~agents.runtime.AgentHost`, many agents
+(thesis 3.5 and 3.6.1: the agents of an application started on a platform with their arguments).
+
+``python -m agents.hostproc --spec SPEC.json --connect ENDPOINT [--name NAME]`` (``--spec -`` or no
+``--spec`` reads the spec from stdin) is what ``rsal run`` starts for each host group of a scenario;
+``rsal agent CLASS`` runs the same code for one agent. The spec is one JSON object::
+
+    {"name": "hunters", "arguments": {"report_every": 1.0},
+     "agents": [{"id": "hunter1", "cls": "FollowAgent", "robot": "r1", "args": {"prey": "r0"}}],
+     "tolerate_failures": false, "report_every": 5.0, "duration": null}
+
+Each agent is built as ``resolve(cls)(id, robot=robot, **kwargs)`` with the global ``arguments``
+its constructor accepts and its own ``args`` (:func:`agents.scenario.constructor_kwargs`). Agents
+that drive a robot (an async ``find_robot(fabric)``, like :class:`agents.classes.RobotAgent`) look
+for their devices concurrently, off the loop, so one slow robot does not hold up the others; then
+each is started on the host. Progress lines are ``[host NAME] ...`` on stdout. SIGTERM or SIGINT
+stops every agent (robots stopped, tokens ``agents/<id>`` withdrawn) and exits 0. An agent that
+cannot be built or started gives one line on stderr and exit 1 after the others are stopped, unless
+the spec tolerates failures; an agent whose body failed makes the exit code 1 too. When every agent
+has ended on its own the process exits (0, or 1 if one failed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import signal
+import sys
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rsal.transport import TransportArgs, add_transport_args
+
+__all__ = ["AgentSpec", "HostError", "HostSpec", "build_agent", "load_spec", "main", "serve_agents"]
+
+_SPEC_KEYS = ("name", "agents", "arguments", "tolerate_failures", "report_every", "duration")
+_AGENT_KEYS = ("id", "cls", "robot", "args")
+
+
+class HostError(ValueError):
+    """A spec or an agent that cannot be built; the message is one line."""
+
+
+@dataclass(frozen=True)
+class AgentSpec:
+    id: str
+    cls: str
+    robot: str = ""
+    args: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class HostSpec:
+    name: str
+    agents: tuple[AgentSpec, ...]
+    arguments: dict[str, Any] = field(default_factory=dict)
+    tolerate_failures: bool = False
+    report_every: float = 5.0
+    duration: float | None = None
+
+    def to_json(self) -> str:
+        return json.dumps(
+            {
+                "name": self.name,
+                "agents": [{"id": a.id, "cls": a.cls, "robot": a.robot, "args": a.args} for a in self.agents],
+                "arguments": self.arguments,
+                "tolerate_failures": self.tolerate_failures,
+                "report_every": self.report_every,
+                "duration": self.duration,
+            }
+        )
+
+
+def load_spec(text: str, source: str = "spec") -> HostSpec:
+    """Parse and check a host spec (JSON); raises :class:`HostError` with one line."""
+    try:
+        d = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise HostError(f"{source}: not valid JSON: {e}") from None
+    if not isinstance(d, dict):
+        raise HostError(f"{source}: must be a JSON object with keys {', '.join(_SPEC_KEYS)}")
+    unknown = sorted(set(d) - set(_SPEC_KEYS))
+    if unknown:
+        raise HostError(f"{source}: unknown key(s) {', '.join(unknown)}; known: {', '.join(_SPEC_KEYS)}")
+    raw = d.get("agents")
+    if not isinstance(raw, list) or not raw:
+        raise HostError(f"{source}: 'agents' must be a non-empty list of {{id, cls, robot, args}}")
+    agents = []
+    for i, a in enumerate(raw):
+        if not isinstance(a, dict) or set(a) - set(_AGENT_KEYS) or not isinstance(a.get("id"), str):
+            raise HostError(f"{source}: agents[{i}] must be an object with 'id', 'cls' and optional 'robot', 'args'")
+        if not isinstance(a.get("cls"), str) or not isinstance(a.get("args", {}), dict):
+            raise HostError(f"{source}: agents[{i}] ({a['id']}): 'cls' must be a class name and 'args' an object")
+        agents.append(AgentSpec(a["id"], a["cls"], str(a.get("robot") or ""), dict(a.get("args") or {})))
+    arguments = d.get("arguments") or {}
+    if not isinstance(arguments, dict):
+        raise HostError(f"{source}: 'arguments' must be an object")
+    every = d.get("report_every", 5.0)
+    duration = d.get("duration")
+    if not isinstance(every, (int, float)) or not every > 0:
+        raise HostError(f"{source}: 'report_every' must be a positive number of seconds")
+    if duration is not None and (not isinstance(duration, (int, float)) or not duration > 0):
+        raise HostError(f"{source}: 'duration' must be a positive number of seconds or null")
+    return HostSpec(
+        str(d.get("name") or agents[0].id),
+        tuple(agents),
+        dict(arguments),
+        bool(d.get("tolerate_failures", False)),
+        float(every),
+        None if duration is None else float(duration),
+    )
+
+
+def build_agent(spec: AgentSpec, arguments: dict[str, Any] | None = None):
+    """``resolve(cls)(id, robot=..., **kwargs)``; an unknown class or a bad argument raises
+    :class:`HostError` naming the agent."""
+    from .registry import AgentClassError, resolve
+    from .scenario import constructor_kwargs
+
+    try:
+        cls = resolve(spec.cls)
+    except AgentClassError as e:
+        raise HostError(str(e)) from None
+    kwargs = constructor_kwargs(cls, spec.robot, arguments or {}, spec.args)
+    try:
+        return cls(spec.id, **kwargs)
+    except (TypeError, ValueError) as e:
+        raise HostError(f"agent {spec.id} ({cls.__name__}): {e}") from None
+
+
+def _starting_line(agent) -> str:
+    robot = f" for robot {agent.robot}" if agent.robot else ""
+    opts = [f"laser {'on' if agent.laser else 'off'}"] if hasattr(agent, "laser") else []
+    opts.append(f"period {agent.period:g} s")
+    return f"starting {type(agent).__name__} {agent.id}{robot} ({', '.join(opts)})"
+
+
+def _status(agent) -> str:
+    status = getattr(agent, "status", None)
+    return status() if callable(status) else agent.state
+
+
+def _error_text(e: BaseException) -> str:
+    from rsal.robot import RobotError
+
+    if isinstance(e, (TimeoutError, RobotError, InterruptedError, ValueError)):
+        return str(e)
+    return f"{type(e).__name__}: {e}"
+
+
+async def serve_agents(
+    agents: list,
+    targs: TransportArgs,
+    *,
+    tag: str,
+    fail: Callable[[str], None],
+    report_every: float = 5.0,
+    duration: float | None = None,
+    tolerate_failures: bool = False,
+    name_agents: bool = True,
+) -> int:
+    """Run ``agents`` on one host until SIGTERM/SIGINT, ``duration`` or their own end; returns the
+    exit code. ``tag`` prefixes progress lines (``[agent]``, ``[host NAME]``); ``fail(line)`` reports
+    an error line; ``name_agents`` puts the agent id in front of its errors."""
+    from rsal.client import Fabric
+    from rsal.transport import open_session
+
+    from .runtime import AgentHost
+
+    loop = asyncio.get_running_loop()
+    loop.set_default_executor(ThreadPoolExecutor(max_workers=max(8, len(agents) + 4)))
+    stop = asyncio.Event()
+    got: list[str] = []
+
+    def on_signal(sig: signal.Signals) -> None:
+        got.append(sig.name)
+        stop.set()
+
+    for s in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(s, on_signal, s)
+
+    def error(agent, e: BaseException) -> None:
+        fail(f"agent {agent.id}: {_error_text(e)}" if name_agents else _error_text(e))
+
+    for a in agents:
+        print(f"{tag} {_starting_line(a)}", flush=True)
+    session = await asyncio.to_thread(open_session, targs)
+    async with AgentHost(session, own_session=True) as host:
+        fabrics: dict[str, Fabric] = {}
+
+        async def start_one(agent) -> None:
+            if hasattr(agent, "find_robot") and getattr(agent, "pioneer", True) is None:
+                fabrics[agent.id] = Fabric(session, own_session=False)
+                await agent.find_robot(fabrics[agent.id])
+            await host.start(agent)
+
+        starts = {a.id: asyncio.ensure_future(start_one(a)) for a in agents}
+        stopping = asyncio.ensure_future(stop.wait())
+        pending = set(starts.values())
+        failed: list = []
+        while pending and not stopping.done():
+            _, pending = await asyncio.wait(pending | {stopping}, return_when=asyncio.FIRST_COMPLETED)
+            pending.discard(stopping)
+            failed = [a for a in agents if starts[a.id].done() and starts[a.id].exception() is not None]
+            if failed and not tolerate_failures:
+                break
+        if pending:  # a signal or a failure while devices were being looked for: give the searches up
+            for a in agents:
+                if not starts[a.id].done() and hasattr(a, "abort"):
+                    a.abort()
+            await asyncio.wait(pending)
+            for a in agents:
+                if starts[a.id] in pending and starts[a.id].exception() is not None:  # retrieved: no error
+                    why = got[0] if stopping.done() else "another agent failed"
+                    print(f"{tag} {a.id}: {why} before it was started; stopped", flush=True)
+                    if a.id in fabrics:
+                        fabrics[a.id].close()
+        if stopping.done() and not failed:
+            await host.stop()
+            print(f"{tag} stopped ({got[0] if got else 'signal'})", flush=True)
+            return 0
+        for a in failed:
+            error(a, starts[a.id].exception())
+            if a.id in fabrics:
+                fabrics[a.id].close()
+        failed = [a for a in agents if starts[a.id].exception() is not None]
+        running = [a for a in agents if a not in failed]
+        if failed and (not tolerate_failures or not running):
+            stopping.cancel()
+            await host.stop()
+            return 1
+        for a in running:
+            robot = f" on robot {a.robot}" if a.robot else ""
+            print(f"{tag} {a.id} running: {type(a).__name__}{robot}, token agents/{a.id}", flush=True)
+        killed = {a.id: asyncio.ensure_future(host.wait_killed(a)) for a in running}
+        t0 = loop.time()
+        reason = ""
+        ended: set[str] = set()
+        while not reason:
+            left = duration - (loop.time() - t0) if duration else math.inf
+            await asyncio.wait(
+                {stopping, *(k for aid, k in killed.items() if aid not in ended)},
+                timeout=min(report_every, max(0.0, left)),
+                return_when=asyncio.FIRST_COMPLETED,
+            )
+            for a in running:
+                if killed[a.id].done() and a.id not in ended:
+                    ended.add(a.id)
+                    why = f"failed: {type(a.error).__name__}: {a.error}" if a.error is not None else "ended"
+                    print(f"{tag} {a.id} {why}", flush=True)
+            if stopping.done():
+                reason = got[0] if got else "signal"
+            elif len(ended) == len(running):
+                reason = "killed" if len(running) == 1 else "all agents ended"
+            elif duration and loop.time() - t0 >= duration:
+                reason = f"duration {duration:g} s"
+            elif left > 0 or not duration:
+                if len(running) <= 4:
+                    for a in running:
+                        if a.id not in ended:
+                            print(f"{tag} {a.id} t={loop.time() - t0:6.1f} s  {_status(a)}", flush=True)
+                else:
+                    n = len(running) - len(ended)
+                    print(f"{tag} t={loop.time() - t0:6.1f} s  {n}/{len(running)} agents running", flush=True)
+        stopping.cancel()
+        await asyncio.gather(*(host.kill(a) for a in running))
+        for k in killed.values():
+            k.cancel()
+        errors = [a for a in running if a.error is not None]
+        for a in errors:
+            fail(f"agent {a.id} failed: {type(a.error).__name__}: {a.error}")
+        for a in running:
+            if a.error is None:
+                print(f"{tag} {a.id} stopped ({reason}): {_status(a)}", flush=True)
+    return 1 if errors else 0  # failed starts returned 1 above unless tolerated
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m agents.hostproc", description="Run the agents of a host spec.")
+    ap.add_argument("--spec", default="-", help="the host spec JSON file ('-' or omitted: stdin)")
+    ap.add_argument("--name", help="host name for progress lines (default: the spec's)")
+    ap.add_argument("-v", "--verbose", action="count", default=0, help="debug log output")
+    add_transport_args(ap)
+    args = ap.parse_args(argv)
+    from rsal.cli import setup_logging
+
+    setup_logging(args.verbose)
+    source = "stdin" if args.spec == "-" else args.spec
+    prog = "hostproc"
+
+    def fail(line: str) -> None:
+        print(f"{prog}: {line}", file=sys.stderr, flush=True)
+
+    try:
+        text = sys.stdin.read() if args.spec == "-" else Path(args.spec).read_text()
+        spec = load_spec(text, source)
+    except OSError as e:
+        fail(f"cannot read the spec {source!r}: {e.strerror}")
+        return 1
+    except HostError as e:
+        fail(str(e))
+        return 1
+    name = args.name or spec.name
+    prog = f"host {name}"
+    agents = []
+    for a in spec.agents:
+        try:
+            agents.append(build_agent(a, spec.arguments))
+        except HostError as e:
+            fail(str(e))
+            if not spec.tolerate_failures:
+                return 1
+    if not agents:
+        return 1
+    try:
+        return asyncio.run(
+            serve_agents(
+                agents,
+                TransportArgs.from_namespace(args),
+                tag=f"[host {name}]",
+                fail=fail,
+                report_every=spec.report_every,
+                duration=spec.duration,
+                tolerate_failures=spec.tolerate_failures,
+            )
+        )
+    except ValueError as e:  # the session could not be opened
+        fail(str(e))
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

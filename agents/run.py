@@ -1,0 +1,551 @@
+"""``rsal run SCENARIO --app NAME``: start an application of a scenario file and judge the run
+(thesis fig. 3.11: Jadex application files; the scenarios of 4.2).
+
+The runner starts, each as its own process (``start_new_session=True``, PIDs kept and printed):
+
+1. the simulator, ``rsal sim WORLD --listen EP`` (if the application has one), and waits until its
+   ``sim:simulation:0`` device is alive;
+2. the device servers, ``rsal serve CONFIG --connect EP``;
+3. one agent host, ``python -m agents.hostproc``, per host group of agents (:mod:`agents.hostproc`).
+
+``EP`` is a free loopback port unless ``--listen EP`` or ``--connect EP`` (join a running fabric)
+says otherwise. The runner's own Zenoh session subscribes ``svc/outcome/*`` and the agent tokens
+``agents/*``; it prints every outcome as it arrives and a progress line every few seconds, and relays
+its children's output with their name in front. The run ends with success (exit 0) when the end
+condition holds — ``count`` distinct subjects of ok ``event`` outcomes, or ``duration`` seconds
+(counted from the moment every agent is alive) without a failed outcome — or at once with the
+``ok`` of an outcome marked ``final``. It fails (exit 1) on its timeout, a failed final outcome or a
+child that exits unexpectedly (one line naming it and its last stderr line). A bad scenario file or
+argument exits 2 with one line; SIGINT/SIGTERM stop everything and exit 130. Stopping sends SIGTERM
+to the agent hosts, then the servers, then the simulator, each with a deadline, and SIGKILL by PID
+to whatever is left. The format and the lines printed are described in ``docs/scenarios.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import math
+import os
+import queue
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .scenario import Application, Scenario, ScenarioError, check_classes, load_scenario, parse_set
+
+__all__ = ["register", "run_scenario"]
+
+PROG = "rsal run"
+SIM_DEVICE = "rsal/sim/simulation/0"
+REPO_ROOT = Path(__file__).resolve().parent.parent
+#: seconds each kind of child gets to exit after SIGTERM before SIGKILL
+STOP_DEADLINES = {"host": 15.0, "server": 10.0, "sim": 10.0}
+
+
+def _err(text: str) -> None:
+    print(f"{PROG}: {text}", file=sys.stderr, flush=True)
+
+
+class _Out:
+    """Whole lines on stdout from several threads."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+
+    def line(self, text: str) -> None:
+        with self._lock:
+            print(text, flush=True)
+
+    def say(self, text: str) -> None:
+        self.line(f"[run] {text}")
+
+
+class Child:
+    """One process of the run; its output lines are relayed with ``[name]`` in front."""
+
+    def __init__(self, name: str, kind: str, argv: list[str], env: dict, out: _Out):
+        self.name = name
+        self.kind = kind  # sim, server, host
+        self.argv = argv
+        self.out = out
+        self.last_err: collections.deque[str] = collections.deque(maxlen=5)
+        self.p = subprocess.Popen(
+            argv,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            env=env,
+            start_new_session=True,
+            text=True,
+            errors="replace",
+        )
+        self.reported = False
+        self._readers = [
+            threading.Thread(target=self._relay, args=(self.p.stdout, False), daemon=True),
+            threading.Thread(target=self._relay, args=(self.p.stderr, True), daemon=True),
+        ]
+        for t in self._readers:
+            t.start()
+
+    @property
+    def pid(self) -> int:
+        return self.p.pid
+
+    def _relay(self, pipe, is_err: bool) -> None:
+        for raw in pipe:
+            line = raw.rstrip("\n")
+            if not line:
+                continue
+            if is_err:
+                self.last_err.append(line)
+            self.out.line(line if line.startswith("[") else f"[{self.name}] {line}")
+        pipe.close()
+
+    def poll(self) -> int | None:
+        return self.p.poll()
+
+    def drained(self, timeout: float = 2.0) -> None:
+        """Wait (briefly) until its output is relayed, after it exited."""
+        for t in self._readers:
+            t.join(timeout)
+
+    def last_error(self) -> str:
+        return self.last_err[-1] if self.last_err else "(no error output)"
+
+    def signal(self, sig: int) -> None:
+        if self.p.poll() is None:
+            try:
+                os.kill(self.p.pid, sig)
+            except ProcessLookupError:
+                pass
+
+
+@dataclass
+class _Tally:
+    """What the outcomes said so far."""
+
+    subjects: dict[str, dict[str, str]] = field(default_factory=dict)  # event -> subject -> first text
+    failed: list[str] = field(default_factory=list)
+    messages: collections.Counter = field(default_factory=collections.Counter)
+    final: tuple[bool, str] | None = None
+
+
+class Runner:
+    def __init__(self, sc: Scenario, app: Application, args: argparse.Namespace, out: _Out):
+        self.sc = sc
+        self.app = app
+        self.args = args
+        self.out = out
+        self.end = app.end
+        self.timeout = args.timeout or app.end.timeout
+        self.progress = args.progress
+        self.events: queue.SimpleQueue = queue.SimpleQueue()
+        self.children: list[Child] = []
+        self.tally = _Tally()
+        self.expected = [a.id for a in app.agents]
+        self.alive: set[str] = set()
+        self.ever_alive: set[str] = set()
+        self.devices: set[str] = set()
+        self.signalled: list[str] = []
+        self.result: tuple[bool, str] | None = None
+        self.all_alive_at: float | None = None
+        self.phase = "start"
+        self.session = None
+        self._handles: list = []
+        if args.connect:
+            self.endpoint, self.sim_flag = args.connect, "--connect"
+        else:
+            self.endpoint = args.listen or f"tcp/127.0.0.1:{_free_port()}"
+            self.sim_flag = "--listen"
+
+    # ------------------------------------------------------------------ fabric
+    def _open(self) -> None:
+        import zenoh
+
+        from rsal.transport import TransportArgs, open_session
+
+        from .services import decode_message
+
+        if self.args.connect or self.app.simulator is not None:
+            targs = TransportArgs(connect=[self.endpoint])
+        else:  # nobody else listens: the runner is the fabric's meeting point
+            targs = TransportArgs(listen=[self.endpoint])
+        self.session = open_session(targs)
+        q = self.events
+
+        def on_outcome(sample) -> None:
+            sender = str(sample.key_expr).rsplit("/", 1)[-1]
+            try:
+                msg = decode_message("outcome", sender, sample.payload.to_bytes())
+            except Exception as e:  # a malformed sample: reported, never counted
+                q.put(("bad", sender, str(e)))
+                return
+            q.put(("outcome", sender, msg.body))
+
+        def on_agent(sample) -> None:
+            q.put(("agent", str(sample.key_expr).split("/", 1)[1], sample.kind == zenoh.SampleKind.PUT))
+
+        def on_device(sample) -> None:
+            q.put(("device", str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
+
+        lv = self.session.liveliness()
+        self._handles = [
+            self.session.declare_subscriber("svc/outcome/*", on_outcome),
+            lv.declare_subscriber("agents/*", on_agent, history=True),
+            lv.declare_subscriber("rsal/*/*/*", on_device, history=True),
+        ]
+
+    def _close(self) -> None:
+        for h in self._handles:
+            try:
+                h.undeclare()
+            except Exception:
+                pass
+        if self.session is not None:
+            try:
+                self.session.close()
+            except Exception:
+                pass
+
+    # ------------------------------------------------------------------ children
+    def _env(self) -> dict:
+        env = dict(os.environ)
+        paths = [str(self.sc.source.parent.resolve()), os.getcwd(), str(REPO_ROOT)]
+        if env.get("PYTHONPATH"):
+            paths.append(env["PYTHONPATH"])
+        env["PYTHONPATH"] = os.pathsep.join(dict.fromkeys(paths))
+        env["PYTHONUNBUFFERED"] = "1"
+        return env
+
+    def _start(self, name: str, kind: str, argv: list[str], shown: str) -> Child:
+        c = Child(name, kind, argv, self._env(), self.out)
+        self.children.append(c)
+        self.out.say(f"started {name} (pid {c.pid}): {shown}")
+        return c
+
+    def _start_sim(self) -> None:
+        s = self.app.simulator
+        flags = [self.sim_flag, self.endpoint]
+        if s.nav:
+            flags += ["--nav", s.nav]
+        if s.nav_robots:
+            flags += ["--nav-robots", ",".join(s.nav_robots)]
+        if s.speedup is not None:
+            flags += ["--speedup", f"{s.speedup:g}"]
+        if s.seed is not None:
+            flags += ["--seed", str(s.seed)]
+        argv = [sys.executable, "-m", "rsal.cli", "sim", str(s.world), *flags]
+        self._start("sim", "sim", argv, " ".join(["rsal sim", _rel(s.world), *flags]))
+
+    def _start_rest(self, tmp: Path) -> None:
+        for i, cfg in enumerate(self.app.servers):
+            name = "serve" if len(self.app.servers) == 1 else f"serve{i}"
+            argv = [sys.executable, "-m", "rsal.cli", "serve", str(cfg), "--connect", self.endpoint]
+            self._start(name, "server", argv, f"rsal serve {_rel(cfg)} --connect {self.endpoint}")
+        from .hostproc import AgentSpec, HostSpec
+
+        for group, entries in self.app.groups().items():
+            spec = HostSpec(
+                group,
+                tuple(AgentSpec(a.id, a.cls, a.robot, a.args) for a in entries),
+                dict(self.sc.arguments),
+                report_every=self.args.host_report,
+            )
+            path = tmp / f"host-{group}.json"
+            path.write_text(spec.to_json())
+            argv = [sys.executable, "-m", "agents.hostproc", "--spec", str(path), "--name", group]
+            argv += ["--connect", self.endpoint]
+            ids = ", ".join(a.id for a in entries)
+            self._start(group, "host", argv, f"agent host with {len(entries)} agent(s): {ids}")
+
+    def _stop_children(self) -> None:
+        for kind in ("host", "server", "sim"):
+            group = [c for c in self.children if c.kind == kind and c.poll() is None]
+            for c in group:
+                c.signal(signal.SIGTERM)
+            deadline = time.monotonic() + STOP_DEADLINES[kind]
+            for c in group:
+                try:
+                    c.p.wait(max(0.0, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    self.out.say(f"{c.name} (pid {c.pid}) did not stop within {STOP_DEADLINES[kind]:g} s; killed")
+                    c.signal(signal.SIGKILL)
+                    c.p.wait(5)
+        for c in self.children:
+            c.drained()
+
+    # ------------------------------------------------------------------ events
+    def _drain(self, wait: float) -> None:
+        try:
+            item = self.events.get(timeout=wait)
+        except queue.Empty:
+            return
+        while True:
+            self._handle(item)
+            try:
+                item = self.events.get_nowait()
+            except queue.Empty:
+                return
+
+    def _handle(self, item) -> None:
+        kind, who, what = item
+        if kind == "outcome":
+            t = self.tally
+            t.messages[what.event] += 1
+            mark = "" if what.ok else " (failed)"
+            self.out.say(f"outcome from {who}: {what.text}{mark}")
+            if what.final:
+                if t.final is None:
+                    t.final = (what.ok, what.text)
+            elif not what.ok:
+                t.failed.append(what.text)
+            else:
+                t.subjects.setdefault(what.event, {}).setdefault(what.subject, what.text)
+        elif kind == "bad":
+            self.out.say(f"dropped a malformed outcome from {who}: {what}")
+        elif kind == "agent":
+            if what:
+                if who not in self.alive and len(self.expected) <= 10:
+                    self.out.say(f"agent {who} is up")
+                self.alive.add(who)
+                self.ever_alive.add(who)
+            elif who in self.alive:
+                self.alive.discard(who)
+                if self.result is None:
+                    self.out.say(f"agent {who} left")
+        elif kind == "device":
+            (self.devices.add if what else self.devices.discard)(who)
+
+    def _count_text(self) -> str:
+        e = self.end
+        if e.event is not None:
+            return f"{e.event} {len(self.tally.subjects.get(e.event, {}))}/{e.count}"
+        if self.all_alive_at is None:
+            return f"0.0/{e.duration:g} s"
+        return f"{min(e.duration, time.monotonic() - self.all_alive_at):.1f}/{e.duration:g} s"
+
+    def _check(self, now: float, t0: float) -> None:
+        """Set ``self.result`` when the run is over."""
+        for c in self.children:
+            rc = c.poll()
+            if rc is None or c.reported:
+                continue
+            c.reported = True
+            c.drained()
+            if c.kind == "host" and rc == 0:
+                self.out.say(f"agent host {c.name} exited: its agents ended")
+                continue
+            what = {"sim": "the simulator", "server": "device server", "host": "agent host"}[c.kind]
+            name = "" if c.kind == "sim" else f" {c.name!r}"
+            self.result = (False, f"{what}{name} (pid {c.pid}) exited with code {rc}: {c.last_error()}")
+            return
+        t = self.tally
+        if t.final is not None:
+            self.result = t.final
+            return
+        if self.phase == "run":
+            if self.all_alive_at is None and all(a in self.ever_alive for a in self.expected):
+                self.all_alive_at = now
+                self.out.say(f"all {len(self.expected)} agent(s) alive after {now - t0:.1f} s")
+            e = self.end
+            if e.event is not None:
+                got = t.subjects.get(e.event, {})
+                if len(got) >= e.count:
+                    self.result = (True, "; ".join(list(got.values())[: e.count]))
+                    return
+            elif self.all_alive_at is not None and now - self.all_alive_at >= e.duration:
+                if t.failed:
+                    self.result = (False, f"{len(t.failed)} failed outcome(s): {t.failed[0]}")
+                else:
+                    self.result = (True, f"ran {e.duration:g} s with every agent started and no failed outcome")
+                return
+        if now - t0 >= self.timeout:
+            if self.phase == "sim":
+                why = f"the simulator's devices did not appear within {self.timeout:g} s"
+            else:
+                up = len([a for a in self.expected if a in self.ever_alive])
+                why = f"timeout after {self.timeout:g} s ({self._count_text()}, {up}/{len(self.expected)} agents up)"
+            self.result = (False, why)
+
+    # ------------------------------------------------------------------ main
+    def _loop(self, t0: float, tmp: Path) -> None:
+        """Until the run is over or a signal came: events, phases, end checks, progress lines."""
+        next_progress = t0 + self.progress
+        while self.result is None and not self.signalled:
+            self._drain(0.1)
+            now = time.monotonic()
+            if self.phase == "sim" and SIM_DEVICE in self.devices:
+                self.out.say(f"simulator up after {now - t0:.1f} s: {len(self.devices)} device(s)")
+                self._start_rest(tmp)
+                self.phase = "run"
+            self._check(now, t0)
+            if self.result is None and now >= next_progress:
+                next_progress = now + self.progress
+                if self.phase == "sim":
+                    self.out.say(f"t={now - t0:.1f} s waiting for the simulator's devices")
+                else:
+                    n = len([a for a in self.expected if a in self.alive])
+                    self.out.say(f"t={now - t0:.1f} s agents {n}/{len(self.expected)} alive, {self._count_text()}")
+
+    def run(self) -> int:
+        def on_signal(signum, frame) -> None:
+            self.signalled.append(signal.Signals(signum).name)
+
+        old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        t0 = time.monotonic()
+        desc = f" ({self.app.description})" if self.app.description else ""
+        self.out.say(f"scenario {self.sc.name}, application {self.app.name}{desc}; fabric {self.endpoint}")
+        interrupted = ""
+        try:
+            with tempfile.TemporaryDirectory(prefix="rsal-run-") as tmp:
+                try:
+                    self._open()
+                except ValueError as e:
+                    _err(str(e))
+                    return 1
+                if self.app.simulator is not None:
+                    self.phase = "sim"
+                    self._start_sim()
+                else:
+                    self._start_rest(Path(tmp))
+                    self.phase = "run"
+                self._loop(t0, Path(tmp))
+                if self.signalled:
+                    interrupted = self.signalled[0]
+                    self.out.say(f"{interrupted}: stopping")
+                elif not self.result[0]:
+                    _err(self.result[1])
+                self._stop_children()
+        finally:
+            self._stop_children()  # also after an unexpected error: no child outlives the run
+            self._close()
+            for s, h in old.items():
+                signal.signal(s, h)
+        elapsed = time.monotonic() - t0
+        if interrupted:
+            result = f"interrupted ({interrupted})"
+            code = 130
+        else:
+            ok, text = self.result
+            result = f"{'ok' if ok else 'FAILED'} — {text}"
+            code = 0 if ok else 1
+        self.out.say(f"result: {result}")
+        counts = ", ".join(
+            f"{ev} {len(self.tally.subjects.get(ev, {}))} ({n} message(s))"
+            for ev, n in sorted(self.tally.messages.items())
+        )
+        self.out.say(
+            f"elapsed {elapsed:.1f} s; agents started {len(self.ever_alive & set(self.expected))}/"
+            f"{len(self.expected)}; outcomes: {counts or 'none'}"
+            + (f"; failed outcomes {len(self.tally.failed)}" if self.tally.failed else "")
+        )
+        return code
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _rel(p: Path) -> str:
+    try:
+        return str(p.relative_to(Path.cwd()))
+    except ValueError:
+        return str(p)
+
+
+def _list(sc: Scenario) -> None:
+    print(f"scenario {sc.name}: {sc.description}".rstrip(": "))
+    print("applications:")
+    w = max(len(n) for n in sc.applications)
+    for name, app in sc.applications.items():
+        print(f"  {name.ljust(w)}  {app.description}".rstrip())
+
+
+def run_scenario(args: argparse.Namespace) -> int:
+    try:
+        sc = load_scenario(args.scenario, parse_set(args.set or []))
+    except ScenarioError as e:
+        _err(str(e))
+        return 2
+    if args.list:
+        _list(sc)
+        return 0
+    if args.app is None and len(sc.applications) > 1:
+        _list(sc)
+        _err(f"{args.scenario}: choose an application with --app ({', '.join(sc.applications)})")
+        return 2
+    name = args.app or next(iter(sc.applications))
+    app = sc.applications.get(name)
+    if app is None:
+        _list(sc)
+        _err(f"{args.scenario}: no application {name!r}; use one of {', '.join(sc.applications)}")
+        return 2
+    for p in (str(sc.source.parent.resolve()), os.getcwd()):  # module:Class names next to the scenario
+        if p not in sys.path:
+            sys.path.insert(0, p)
+    try:
+        check_classes(sc, app)
+    except ScenarioError as e:
+        _err(str(e))
+        return 2
+    return Runner(sc, app, args, _Out()).run()
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not (v > 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number of seconds")
+    return v
+
+
+def register(sub) -> None:
+    p = sub.add_parser("run", help="start an application of a scenario file and judge the run")
+    p.add_argument(
+        "scenario", metavar="SCENARIO", help="scenario file (YAML or TOML), e.g. deploy/scenarios/wander.yaml"
+    )
+    p.add_argument("--app", help="the application to start (default: the only one; --list shows them)")
+    p.add_argument("--list", action="store_true", help="list the scenario's applications and exit")
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override a global argument (repeatable; VALUE is YAML: 2, 1.5, true, r0)",
+    )
+    p.add_argument("--timeout", type=_positive, help="seconds after which the run fails (default: the end's timeout)")
+    p.add_argument("--progress", type=_positive, default=5.0, help="seconds between progress lines (default 5)")
+    p.add_argument(
+        "--host-report",
+        type=_positive,
+        default=30.0,
+        help="seconds between the agent hosts' own progress lines (default 30)",
+    )
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--connect", metavar="ENDPOINT", help="join a running fabric at ENDPOINT")
+    where.add_argument(
+        "--listen", metavar="ENDPOINT", help="the fabric's endpoint (default: a free port tcp/127.0.0.1:PORT)"
+    )
+    p.set_defaults(func=run_scenario)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="rsal")
+    register(ap.add_subparsers(dest="command"))
+    args = ap.parse_args(["run", *(argv if argv is not None else sys.argv[1:])])
+    return run_scenario(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,249 @@
+"""Unit tests of scenario files (thesis fig. 3.11, application files) and agent-host specs.
+
+The loader turns a YAML or TOML file into frozen dataclasses; every kind of mistake is one
+:class:`ScenarioError` line naming the file, the key path and a fix. ``check_classes`` resolves the
+agent classes and their arguments before anything starts; ``constructor_kwargs`` passes the global
+arguments a constructor accepts and always the entry's own. No network, no processes.
+"""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from agents.hostproc import AgentSpec, HostError, HostSpec, build_agent, load_spec
+from agents.scenario import (
+    DEFAULT_TIMEOUT,
+    ScenarioError,
+    check_classes,
+    constructor_kwargs,
+    load_scenario,
+    parse_set,
+)
+from tests.agents.scenario_agents import Reporter
+from tests.conftest import MAPS, ROOT
+
+GOOD = """
+scenario: demo
+description: a demo
+arguments: {report_every: 1.0, startup_timeout: 5}
+agent_types:
+  prey: EscapeAgent
+  hunter: WallfollowAgent
+  reporter: tests.agents.scenario_agents:Reporter
+applications:
+  virtual:
+    description: all simulated
+    simulator: {world: WORLD, nav: vfh, nav_robots: [r0], speedup: 2}
+    agents:
+      - {type: prey, robot: r0}
+      - {type: hunter, robot: "r{i}", count: 3, id: "hunter{i}", host: hunters}
+      - {type: reporter}
+      - {type: reporter, args: {event: delivered, subjects: [b1, b2]}}
+    end: {event: caught, count: 2, timeout: 60}
+  plain:
+    agents:
+      - {type: reporter, id: rep}
+    end: {duration: 10}
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "s.yaml") -> Path:
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(text).replace("WORLD", str(MAPS / "testroom.world")))
+    return p
+
+
+def error(tmp_path: Path, text: str, name: str = "s.yaml") -> str:
+    p = write(tmp_path, text, name)
+    with pytest.raises(ScenarioError) as e:
+        load_scenario(p)
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith(str(p)), msg
+    return msg
+
+
+def test_good_file_loads_into_dataclasses(tmp_path):
+    sc = load_scenario(write(tmp_path, GOOD))
+    assert sc.name == "demo" and sc.arguments == {"report_every": 1.0, "startup_timeout": 5}
+    app = sc.applications["virtual"]
+    assert app.simulator.world == (MAPS / "testroom.world").resolve()
+    assert app.simulator.nav == "vfh" and app.simulator.nav_robots == ("r0",) and app.simulator.speedup == 2
+    ids = [a.id for a in app.agents]
+    assert ids == ["prey-r0", "hunter0", "hunter1", "hunter2", "reporter0", "reporter1"]
+    assert [a.robot for a in app.agents[1:4]] == ["r0", "r1", "r2"]
+    assert app.agents[1].cls == "WallfollowAgent" and app.agents[1].host == "hunters"
+    assert app.agents[5].args == {"event": "delivered", "subjects": ["b1", "b2"]}
+    groups = app.groups()
+    assert list(groups) == ["prey-r0", "hunters", "reporter0", "reporter1"]
+    assert [a.id for a in groups["hunters"]] == ["hunter0", "hunter1", "hunter2"]
+    assert app.end.event == "caught" and app.end.count == 2 and app.end.timeout == 60 and app.end.duration is None
+    plain = sc.applications["plain"]
+    assert plain.simulator is None and plain.servers == ()
+    assert plain.end.duration == 10 and plain.end.event is None and plain.end.timeout >= DEFAULT_TIMEOUT
+
+
+def test_toml_has_the_same_structure(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text(
+        textwrap.dedent(
+            """
+            scenario = "t"
+            [agent_types]
+            rep = "tests.agents.scenario_agents:Reporter"
+            [applications.one]
+            agents = [{type = "rep", count = 2, id = "rep{i}"}]
+            end = {event = "caught", count = 1}
+            """
+        )
+    )
+    sc = load_scenario(p)
+    assert [a.id for a in sc.applications["one"].agents] == ["rep0", "rep1"]
+    assert sc.applications["one"].end.timeout == DEFAULT_TIMEOUT
+
+
+def test_set_overrides_global_arguments(tmp_path):
+    over = parse_set(["report_every=2", "laser=no", "name=r0", "xs=[1, 2]"])
+    assert over == {"report_every": 2, "laser": False, "name": "r0", "xs": [1, 2]}
+    sc = load_scenario(write(tmp_path, GOOD), over)
+    assert sc.arguments["report_every"] == 2 and sc.arguments["startup_timeout"] == 5 and sc.arguments["laser"] is False
+    for bad in ("report_every", "=3", "2x=1"):
+        with pytest.raises(ScenarioError, match="KEY=VALUE"):
+            parse_set([bad])
+
+
+def test_unknown_keys_suggest_the_near_one(tmp_path):
+    msg = error(tmp_path, GOOD.replace("agent_types:", "agent_type:"))
+    assert "agent_type: unknown key; did you mean 'agent_types'?" in msg
+    msg = error(tmp_path, GOOD.replace("{type: prey, robot: r0}", "{type: prey, robto: r0}"))
+    assert "applications.virtual.agents[0].robto: unknown key; did you mean 'robot'?" in msg
+    msg = error(tmp_path, GOOD.replace("end: {duration: 10}", "end: {duraton: 10}"))
+    assert "applications.plain.end.duraton" in msg and "'duration'" in msg
+    msg = error(tmp_path, GOOD.replace("nav: vfh", "nva: vfh"))
+    assert "simulator.nva: unknown key; did you mean 'nav'?" in msg
+
+
+def test_missing_required_keys(tmp_path):
+    assert "the key 'scenario' is missing" in error(tmp_path, GOOD.replace("scenario: demo", ""))
+    msg = error(tmp_path, GOOD.replace("    end: {duration: 10}\n", ""))
+    assert "applications.plain: the key 'end' is missing; add it" in msg
+    assert "the file is empty" in error(tmp_path, "")
+
+
+def test_wrong_types(tmp_path):
+    msg = error(tmp_path, GOOD.replace("count: 3", "count: three"))
+    assert "agents[1].count: must be a whole number, not the string 'three'" in msg
+    msg = error(tmp_path, GOOD.replace("timeout: 60", "timeout: soon"))
+    assert "end.timeout: must be a number" in msg
+    msg = error(tmp_path, GOOD.replace("speedup: 2", "speedup: -1"))
+    assert "simulator.speedup: must be a positive number" in msg
+    assert "applications: must be a non-empty map" in error(
+        tmp_path, "scenario: x\nagent_types: {a: B}\napplications: []"
+    )
+    msg = error(tmp_path, GOOD.replace("nav: vfh", "nav: astar"))
+    assert "unknown local planner 'astar'; use one of vfh, nd, snd" in msg
+    assert "not valid YAML" in error(tmp_path, "scenario: [x\n")
+    assert "not valid TOML" in error(tmp_path, "scenario = \n", "s.toml")
+
+
+def test_unknown_agent_type(tmp_path):
+    msg = error(tmp_path, GOOD.replace("{type: prey, robot: r0}", "{type: pray, robot: r0}"))
+    assert "agents[0].type: unknown agent type 'pray'; did you mean 'prey'?" in msg
+
+
+def test_duplicate_agent_ids(tmp_path):
+    msg = error(tmp_path, GOOD.replace("{type: reporter}", "{type: reporter, id: hunter1}"))
+    assert "agent id 'hunter1' is used twice (also by applications.virtual.agents[1])" in msg
+    msg = error(tmp_path, GOOD.replace('id: "hunter{i}"', "id: hunter"))
+    assert "3 agents cannot share id 'hunter'" in msg
+    msg = error(tmp_path, GOOD.replace('robot: "r{i}"', "robot: r1"))
+    assert "3 agents cannot share robot 'r1'" in msg
+    assert "one key chunk" in error(tmp_path, GOOD.replace("id: rep}", "id: a/b}"))
+
+
+def test_missing_files_are_named_relative_to_the_scenario(tmp_path):
+    msg = error(tmp_path, GOOD.replace("WORLD", "nowhere.world"))
+    assert "simulator.world: file 'nowhere.world' does not exist (paths are relative to the scenario file)" in msg
+    msg = error(tmp_path, GOOD.replace("  plain:\n", "  plain:\n    servers: [r0.toml]\n"))
+    assert "applications.plain.servers[0]: file 'r0.toml' does not exist" in msg
+    (tmp_path / "r0.toml").write_text("")
+    sc = load_scenario(write(tmp_path, GOOD.replace("  plain:\n", "  plain:\n    servers: [r0.toml]\n")))
+    assert sc.applications["plain"].servers == ((tmp_path / "r0.toml").resolve(),)
+    with pytest.raises(ScenarioError, match="cannot read the scenario file"):
+        load_scenario(tmp_path / "absent.yaml")
+
+
+def test_end_needs_event_or_duration_and_a_count_of_at_least_one(tmp_path):
+    msg = error(tmp_path, GOOD.replace("end: {duration: 10}", "end: {timeout: 10}"))
+    assert "applications.plain.end: needs 'event' (with 'count') or 'duration'" in msg
+    msg = error(tmp_path, GOOD.replace("count: 2, timeout: 60", "count: 0, timeout: 60"))
+    assert "applications.virtual.end.count: must be at least 1, not 0" in msg
+    msg = error(tmp_path, GOOD.replace("count: 3,", "count: 0,"))
+    assert "agents[1].count: must be at least 1" in msg
+    msg = error(tmp_path, GOOD.replace("end: {duration: 10}", "end: {duration: 10, event: caught}"))
+    assert "either 'event' (with 'count') or 'duration', not both" in msg
+    msg = error(tmp_path, GOOD.replace("end: {duration: 10}", "end: {duration: 10, timeout: 5}"))
+    assert "end.timeout: 5 s must be longer than the duration 10 s" in msg
+    msg = error(tmp_path, GOOD.replace("end: {duration: 10}", "end: {duration: 10, count: 2}"))
+    assert "end.count: counts outcomes of an 'event'" in msg
+
+
+def test_check_classes_resolves_classes_and_arguments(tmp_path):
+    sc = load_scenario(write(tmp_path, GOOD))
+    check_classes(sc, sc.applications["virtual"])
+    bad = load_scenario(write(tmp_path, GOOD.replace("hunter: WallfollowAgent", "hunter: HunterAgent")))
+    with pytest.raises(ScenarioError) as e:
+        check_classes(bad, bad.applications["virtual"])
+    assert "agent_types.hunter: unknown agent class 'HunterAgent'" in str(e.value)
+    check_classes(bad, bad.applications["plain"])  # the plain application does not use hunters
+    bad = load_scenario(write(tmp_path, GOOD.replace("subjects: [b1, b2]", "subject: [b1, b2]")))
+    with pytest.raises(ScenarioError) as e:
+        check_classes(bad, bad.applications["virtual"])
+    assert "agent reporter1: args.subject: Reporter takes no argument 'subject'; did you mean 'subjects'?" in str(
+        e.value
+    )
+    bad = load_scenario(write(tmp_path, GOOD.replace("scenario_agents:Reporter", "scenario_agents:Nobody")))
+    with pytest.raises(ScenarioError, match="has no Agent subclass 'Nobody'"):
+        check_classes(bad, bad.applications["plain"])
+
+
+def test_constructor_kwargs_filters_only_global_arguments():
+    from agents.classes import WallfollowAgent
+
+    glob = {"report_every": 2.0, "laser": False, "fleet_size": 3}
+    kw = constructor_kwargs(WallfollowAgent, "r0", glob, {"period": 0.2})
+    assert kw == {"report_every": 2.0, "laser": False, "robot": "r0", "period": 0.2}
+    kw = constructor_kwargs(Reporter, "", glob, {"event": "x", "bogus": 1})
+    assert kw == {"robot": "", "event": "x", "bogus": 1}  # entry args always passed ...
+    with pytest.raises(HostError, match=r"agent rep \(Reporter\):.*bogus"):  # ... and rejected by the class
+        build_agent(AgentSpec("rep", "tests.agents.scenario_agents:Reporter", "", {"bogus": 1}), glob)
+
+
+def test_host_spec_round_trip_and_errors():
+    spec = HostSpec("h", (AgentSpec("a", "WallfollowAgent", "r0", {"period": 0.2}),), {"laser": False})
+    back = load_spec(spec.to_json())
+    assert back == spec
+    agent = build_agent(back.agents[0], back.arguments)
+    assert type(agent).__name__ == "WallfollowAgent" and agent.robot == "r0" and agent.laser is False
+    assert agent.period == 0.2
+    for text, what in (
+        ("{", "not valid JSON"),
+        ('{"agents": []}', "non-empty list"),
+        ('{"agents": [{"id": "a"}], "bogus": 1}', "unknown key(s) bogus"),
+        ('{"agents": [{"id": "a", "cls": 3}]}', "'cls' must be a class name"),
+        ('{"agents": [{"id": "a", "cls": "X"}], "report_every": 0}', "'report_every' must be a positive"),
+    ):
+        with pytest.raises(HostError, match=what.replace("(", r"\(").replace(")", r"\)")):
+            load_spec(text)
+    with pytest.raises(HostError, match="unknown agent class 'Nope'"):
+        build_agent(AgentSpec("a", "Nope"))
+
+
+def test_the_demo_scenario_is_valid():
+    sc = load_scenario(ROOT / "deploy" / "scenarios" / "wander.yaml")
+    for app in sc.applications.values():
+        check_classes(sc, app)
+        assert app.simulator.world == (MAPS / "testroom.world").resolve()
+        assert app.end.duration == 20
