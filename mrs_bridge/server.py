@@ -116,6 +116,7 @@ class DeviceServer:
         self._warned: dict[str, tuple[float, int]] = {}
         self.stats = {"cmd": 0, "rpc": 0, "rejected": 0, "published": 0}
         self._failed = 0  # drivers that failed (the loop checks whether any still works)
+        self._pub_cache: dict[int, tuple[DeviceAddr, _Device]] = {}  # id(addr) -> (addr, device)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -170,6 +171,7 @@ class DeviceServer:
         for dev in list(self.devices.values()):
             dev.undeclare()
         self.devices.clear()
+        self._pub_cache.clear()
 
     @property
     def running_drivers(self) -> list[Driver]:
@@ -297,6 +299,7 @@ class DeviceServer:
                 log.warning("%s: shutdown after failure: %s", slot.name, e)
         slot.state = "failed"
         self._failed += 1
+        self._pub_cache.clear()
         for a in slot.driver.cfg.provides:
             dev = self.devices.pop(a.without_key(), None)
             if dev is not None:
@@ -347,6 +350,7 @@ class DeviceServer:
         if slot.driver.online:  # hardware not answering yet: its token comes with set_online(True)
             dev.token = s.liveliness().declare_token(keys.device_key(addr))
         self.devices[addr] = dev
+        self._pub_cache.clear()
 
     # ------------------------------------------------------------------ inbound
     def _handle(self, item: tuple) -> None:
@@ -463,10 +467,22 @@ class DeviceServer:
 
     # ------------------------------------------------------------------ outbound
     def publish(self, addr: DeviceAddr, msg) -> None:
-        dev = self.devices.get(addr.without_key() if addr.key else addr)
-        if dev is None or dev.pub is None:
+        # Drivers publish with the same address objects every time (their cfg.provides): look the
+        # device up by identity first, which skips hashing and comparing the dataclass. The cache
+        # holds the address object, so its id cannot be reused while the entry lives; it is
+        # emptied whenever a device is declared or withdrawn.
+        hit = self._pub_cache.get(id(addr))
+        if hit is not None and hit[0] is addr:
+            dev = hit[1]
+        else:
+            dev = self.devices.get(addr.without_key() if addr.key else addr)
+            if dev is None:
+                return
+            self._pub_cache[id(addr)] = (addr, dev)
+        pub = dev.pub
+        if pub is None:
             return
-        dev.pub.put(encode(msg))
+        pub.put(encode(msg))
         self.stats["published"] += 1
 
     def send(self, addr: DeviceAddr, msg) -> None:

@@ -90,11 +90,19 @@ class RpcError(Exception):
 
 
 # ---------------------------------------------------------------------------- codec
+_packb = msgpack.packb
+
+
 def encode(obj: Any) -> bytes:
     """msgpack bytes of a message (dataclass with ``to_dict``) or a plain map."""
-    if hasattr(obj, "to_dict"):
-        obj = obj.to_dict()
-    return msgpack.packb(obj, use_bin_type=True)
+    if type(obj) is not dict:  # the hot path: a message class
+        try:
+            to_dict = obj.to_dict
+        except AttributeError:  # another mapping
+            pass
+        else:
+            obj = to_dict()
+    return _packb(obj, use_bin_type=True)
 
 
 def decode_map(data: bytes | bytearray | memoryview | None) -> dict:

@@ -2,14 +2,15 @@
 
 Provides ``ranger`` and/or ``laser`` devices that publish :class:`~rsal.msgs.RangerData` scans at
 ``rate`` Hz without a simulator or hardware, the way Player test set-ups replayed a logged laser.
-``rate = inf`` publishes once per iteration of the server's scheduler loop (as fast as it goes).
+``rate = inf`` publishes as fast as it goes: back-to-back scans for 2 ms per scheduler call, so
+commands and rpcs of the other devices still wait at most that long.
 
 Parameters (Player-style names, degrees where a user types an angle)::
 
     [[driver]]
     name = "replay"
     provides = ["r0:ranger:0", "r0:laser:0"]
-    rate = 10            # Hz; inf: every scheduler iteration
+    rate = 10            # Hz; inf: as fast as it goes
     samples = 682        # beams per scan (default 682, a Hokuyo URG-04LX)
     fov = 240            # degrees, centred on the sensor's x axis (default 240)
     range_min = 0.02     # m (default 0.02)
@@ -45,6 +46,7 @@ from ..driver import Driver, register
 __all__ = ["ReplayDriver"]
 
 PATTERNS = ("constant", "sweep")
+BURST = 0.002  # s of back-to-back scans per scheduler call at rate = inf (commands and rpcs wait at most this)
 STAMPS = ("elapsed", "monotonic")
 PARAMS = ("samples", "fov", "range_min", "range_max", "pattern", "value", "period", "count", "stamp")
 
@@ -133,6 +135,14 @@ class ReplayDriver(Driver):
         return (lo + (hi - lo) * 0.5 * (1.0 + wave)).astype("<f4")
 
     def update(self, now: float) -> None:
+        if math.isinf(self.rate):  # as fast as it goes: a burst of scans, then back to the scheduler
+            end = time.monotonic() + BURST
+            while self.rate and time.monotonic() < end:
+                self._scan(now)
+            return
+        self._scan(now)
+
+    def _scan(self, now: float) -> None:
         if self.count is not None and self.sent >= self.count:
             return
         elapsed = now - self._t0
