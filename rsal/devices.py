@@ -65,6 +65,7 @@ class Device:
         self._event_listeners: list[Callable[[dict], None]] = []
         self._lost_listeners: list[Callable[[Device], None]] = []
         self._cond = threading.Condition()
+        self._waiting = 0  # threads in wait_for_data: only then does new data need a notify
         self._bad = 0
         s = fabric.session
         self._sub = s.declare_subscriber(keys.data_key(addr), self._on_data)
@@ -99,11 +100,14 @@ class Device:
             if self._bad in (1, 10, 100) or self._bad % 1000 == 0:
                 log.warning("%s: dropped malformed data (%d so far): %s", self.addr, self._bad, e)
             return
-        with self._cond:
-            self.latest = msg
-            self.received_at = time.monotonic()
-            self.count += 1
-            self._cond.notify_all()
+        # One Zenoh thread per subscription delivers in order, so these plain writes need no lock;
+        # waiters count themselves in under the condition before they check, so none is missed.
+        self.latest = msg
+        self.received_at = time.monotonic()
+        self.count += 1
+        if self._waiting:
+            with self._cond:
+                self._cond.notify_all()
         self._after_data(msg)
         for fn in self._inline_listeners:
             try:
@@ -162,12 +166,16 @@ class Device:
         """Block until a data message (newer than message number ``newer_than``) arrived."""
         deadline = time.monotonic() + timeout
         with self._cond:
-            while self.latest is None or (newer_than is not None and self.count <= newer_than):
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise TimeoutError(f"{self.addr}: no data within {timeout:g} s; is the device alive (rsal ls)?")
-                self._cond.wait(left)
-            return self.latest
+            self._waiting += 1
+            try:
+                while self.latest is None or (newer_than is not None and self.count <= newer_than):
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        raise TimeoutError(f"{self.addr}: no data within {timeout:g} s; is the device alive (rsal ls)?")
+                    self._cond.wait(left)
+                return self.latest
+            finally:
+                self._waiting -= 1
 
     def age(self) -> float:
         """Seconds since the latest data (inf if none)."""

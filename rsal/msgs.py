@@ -309,6 +309,19 @@ class RangerData(_Msg):
 
     @classmethod
     def from_dict(cls, m: dict) -> RangerData:
+        g = m.get
+        t, r, a0, da, lo, hi = g("t"), g("ranges"), g("angle_min"), g("angle_step"), g("range_min"), g("range_max")
+        if (  # fast path: every field present and well-typed; x - x is NaN for inf and NaN
+            type(t) is float
+            and type(a0) is float
+            and type(da) is float
+            and type(lo) is float
+            and type(hi) is float
+            and (t - t) + (a0 - a0) + (da - da) + (lo - lo) + (hi - hi) == 0.0
+            and type(r) is bytes
+            and not len(r) & 3
+        ):
+            return cls(t, np.frombuffer(r, _F32), a0, da, lo, hi)
         return cls(
             get_float(m, "t"),
             f32_array(m, "ranges"),
