@@ -5,6 +5,13 @@ builds a :class:`rsal.robot.Pioneer` from them (the laser on or off, the thesis'
 of 3.5), lets it wall-follow with the subsumption behaviour (3.6.2.4) and publishes the robot's pose
 on the ``send_position`` service (3.6.1, fig. 3.10) every ``report_every`` seconds.
 
+A robot without a localize device reports in its odometry frame, which starts at (0, 0, 0) where the
+robot was created; given a start ``pose`` ([x, y, degrees], thesis 3.5) or ``simulation`` true (the
+true start pose read from the simulation device), the agent sets the odometry to it and reports in
+the ``map`` frame. :class:`EscapeAgent`, the prey of Hunt and Prey, spins in place once a hunter
+reports it caught. Subclasses that drive another kind of robot override ``make_robot`` and ``needs``
+(e.g. :class:`agents.hunt.NavAgent`).
+
 Device discovery and ``describe`` block; they run in a worker thread with ``asyncio.to_thread`` so
 the host's loop keeps serving its other agents. The robot's own 100 ms control cycle runs on the
 robot's thread (3.6.2.2); the agent's steps only read its pose and publish.
@@ -18,12 +25,15 @@ import asyncio
 import logging
 import threading
 import time
+from collections.abc import Sequence
 
 from rsal.client import Fabric
-from rsal.robot import Pioneer, RobotError, robot_devices
+from rsal.data import Position
+from rsal.msgs import RpcError
+from rsal.robot import Pioneer, Robot, RobotError, robot_devices
 
 from .runtime import Agent
-from .services import SendPosition
+from .services import Outcome, SendPosition, match
 
 __all__ = ["AGENT_CLASSES", "EscapeAgent", "RobotAgent", "WallfollowAgent"]
 
@@ -33,9 +43,13 @@ log = logging.getLogger(__name__)
 class RobotAgent(Agent):
     """An agent that drives one Pioneer (thesis 3.6.1 with 3.6.2.2): the robot is found and built
     in :meth:`find_robot` (called by ``created()`` unless done before), started in ``created()`` and
-    stopped in ``killed()``. Subclasses set the robot's behaviour in :meth:`configure`."""
+    stopped in ``killed()``. Subclasses set the robot's behaviour in :meth:`configure`; one that
+    drives another kind of robot overrides :meth:`make_robot` and names the device interfaces it
+    needs besides position2d and a ranger in ``needs``."""
 
     capabilities = ("send_position",)
+    #: device interfaces the robot needs besides position2d and a ranger (e.g. ``("planner",)``)
+    needs: tuple[str, ...] = ()
 
     def __init__(
         self,
@@ -46,6 +60,8 @@ class RobotAgent(Agent):
         laser: bool = True,
         report_every: float = 1.0,
         startup_timeout: float = 30.0,
+        simulation: bool = False,
+        pose: Sequence[float] | None = None,
     ):
         if not robot:
             raise ValueError(f"agent {agent_id}: a robot id is required")
@@ -53,14 +69,20 @@ class RobotAgent(Agent):
         self.laser = bool(laser)
         self.report_every = float(report_every)
         self.startup_timeout = float(startup_timeout)
-        self.pioneer: Pioneer | None = None
+        self.simulation = bool(simulation)
+        try:
+            self.start_pose = Position.from_degrees(*pose) if pose is not None else None
+        except (TypeError, ValueError):
+            raise ValueError(f"agent {agent_id}: pose {pose!r} must be [x, y, degrees]") from None
+        self.frame = "odom"  # of the odometry; "map" once anchored to pose or the simulation's true pose
+        self.pioneer: Robot | None = None  # the robot built from the devices (a Pioneer unless overridden)
         self.fabric: Fabric | None = None
         self.sent = 0  # send_position messages published
         self._next_report = 0.0
         self._abort = threading.Event()
 
     # ------------------------------------------------------------------ robot
-    async def find_robot(self, fabric: Fabric) -> Pioneer:
+    async def find_robot(self, fabric: Fabric) -> Robot:
         """Find the robot's devices and build its Pioneer, off the loop. Raises :class:`TimeoutError`
         when its devices (position2d and the rangers it needs) do not appear within
         ``startup_timeout`` seconds, or :class:`RobotError` when they cannot make a robot."""
@@ -72,7 +94,12 @@ class RobotAgent(Agent):
         """Make a running :meth:`find_robot` give up soon with :class:`InterruptedError`."""
         self._abort.set()
 
-    def _build(self, fabric: Fabric) -> Pioneer:  # a worker thread
+    def make_robot(self, devices: list) -> Robot:
+        """Build the robot from its device proxies (a worker thread); raise :class:`RobotError` while
+        a device it needs is missing (the search goes on until ``startup_timeout``)."""
+        return Pioneer(devices, name=self.robot, period=self.period, laser=self.laser)
+
+    def _build(self, fabric: Fabric) -> Robot:  # a worker thread
         name = self.robot
         deadline = time.monotonic() + self.startup_timeout
         node = fabric.node(f"{name}:*:*")
@@ -92,21 +119,56 @@ class RobotAgent(Agent):
         while True:
             devs = [node.device(a) for a in node.search(node=name)]
             try:
-                robot = Pioneer(devs, name=name, period=self.period, laser=self.laser)
+                have = {d.interface for d in devs}
+                missing = [i for i in self.needs if i not in have]
+                if missing:
+                    raise RobotError(
+                        f"robot {name!r}: no {' or '.join(missing)} device appeared within {self.startup_timeout:g} s "
+                        f"(a {type(self).__name__} needs them; e.g. 'rsal sim WORLD --nav vfh')"
+                    )
+                robot = self.make_robot(devs)
                 break
             except RobotError:
                 if time.monotonic() >= deadline or self._abort.is_set():
                     raise
-                node.wait_for(f"{name}:*:*", len(devs) + 1, max(0.05, min(0.5, deadline - time.monotonic())))
+                try:  # for one more device, briefly; the loop decides when to give up
+                    node.wait_for(f"{name}:*:*", len(devs) + 1, max(0.05, min(0.5, deadline - time.monotonic())))
+                except TimeoutError:
+                    pass
         try:
             robot.position2d.wait_for_data(max(0.1, deadline - time.monotonic()))
         except TimeoutError:
             raise TimeoutError(
                 f"robot {name!r}: its position2d sent no data within {self.startup_timeout:g} s"
             ) from None
+        if robot.localize is None:
+            self._anchor(fabric, robot, deadline)
         return robot
 
-    def configure(self, robot: Pioneer) -> None:
+    def _anchor(self, fabric: Fabric, robot: Robot, deadline: float) -> None:  # a worker thread
+        """Set the odometry to ``pose`` or, with ``simulation``, to the robot's true pose in the
+        simulation, so that the agent reports in the map frame (thesis 3.5's initial pose)."""
+        start = self.start_pose
+        try:
+            if start is None and self.simulation:
+                sn = fabric.node("*:simulation:0")
+                try:
+                    found = sn.wait_for("*:simulation:0", 1, max(0.1, deadline - time.monotonic()))
+                except TimeoutError:
+                    raise TimeoutError(
+                        f"robot {self.robot!r}: no simulation device appeared within {self.startup_timeout:g} s "
+                        "(simulation=true needs a simulator; give the start pose as pose: [x, y, degrees] instead)"
+                    ) from None
+                start = sn.device(found[0]).get_pose(self.robot)
+            if start is not None:
+                n = robot.position2d.count
+                robot.position2d.set_odometry(start)
+                robot.position2d.wait_for_data(max(0.5, deadline - time.monotonic()), newer_than=n + 1)
+                self.frame = "map"
+        except RpcError as e:
+            raise RobotError(f"robot {self.robot!r}: cannot set its start pose: {e}") from None
+
+    def configure(self, robot: Robot) -> None:
         """Set the robot's behaviour before it starts (override)."""
 
     def pose_message(self) -> SendPosition | None:
@@ -117,7 +179,8 @@ class RobotAgent(Agent):
         pose = r.position
         if pose is None:
             return None
-        frame = "map" if r.localize is not None and getattr(r.localize, "position", None) is not None else "odom"
+        localized = r.localize is not None and getattr(r.localize, "position", None) is not None
+        frame = "map" if localized else self.frame
         return SendPosition(self.robot, pose.x, pose.y, pose.yaw, frame)
 
     # ------------------------------------------------------------------ lifecycle
@@ -165,10 +228,64 @@ class WallfollowAgent(RobotAgent):
 
 class EscapeAgent(WallfollowAgent):
     """The prey of the hunting scenario (thesis 4.2.1): wall-follows, keeping the wall on its right,
-    and broadcasts its position so that hunters can chase it."""
+    and broadcasts its position so that hunters can chase it. ``speed`` (m/s) is its cruise speed
+    (default: the Pioneer behaviour's, 0.4 m/s). When an ``outcome`` ``caught`` about its robot
+    arrives it stops wall-following and spins in place at ``spin_rate`` rad/s ("the prey spins")."""
 
     side = "right"
     capabilities = ("send_position", "prey")
+
+    def __init__(
+        self,
+        agent_id: str,
+        *,
+        robot: str,
+        period: float = 0.1,
+        laser: bool = True,
+        report_every: float = 1.0,
+        startup_timeout: float = 30.0,
+        simulation: bool = False,
+        pose: Sequence[float] | None = None,
+        speed: float | None = None,
+        spin_rate: float = 0.8,
+    ):
+        super().__init__(
+            agent_id,
+            robot=robot,
+            period=period,
+            laser=laser,
+            report_every=report_every,
+            startup_timeout=startup_timeout,
+            simulation=simulation,
+            pose=pose,
+        )
+        if speed is not None and (isinstance(speed, bool) or not isinstance(speed, int | float) or not 0 < speed <= 2):
+            raise ValueError(f"agent {agent_id}: speed {speed!r} must be a number in (0, 2] m/s")
+        if isinstance(spin_rate, bool) or not isinstance(spin_rate, int | float) or not 0 < spin_rate <= 3:
+            raise ValueError(f"agent {agent_id}: spin_rate {spin_rate!r} must be a number in (0, 3] rad/s")
+        self.speed = None if speed is None else float(speed)
+        self.spin_rate = float(spin_rate)
+        self.caught_by: str | None = None  # the agent that reported the catch
+
+    def configure(self, robot: Pioneer) -> None:
+        if self.speed is not None:
+            robot.behaviour.p.cruise_speed = min(robot.behaviour.p.cruise_speed, self.speed)
+        super().configure(robot)
+
+    async def created(self) -> None:
+        await super().created()
+        self.subscribe(Outcome.SERVICE, self._on_caught, filter=match(event="caught", subject=self.robot))
+
+    def _on_caught(self, msg) -> None:
+        if self.caught_by is not None or self.pioneer is None:
+            return
+        self.caught_by = msg.sender
+        log.info("%s: %s; spinning", self.id, msg.body.text)
+        self.pioneer.set_command(0.0, self.spin_rate)  # also ends the wall-following
+
+    def status(self) -> str:
+        line = super().status()
+        return f"{line}  caught by {self.caught_by}, spinning" if self.caught_by else line
 
 
 AGENT_CLASSES: dict[str, type[RobotAgent]] = {c.__name__: c for c in (WallfollowAgent, EscapeAgent)}

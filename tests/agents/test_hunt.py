@@ -1,0 +1,256 @@
+"""Hunt and Prey (thesis 4.2.1): NavAgent, FollowAgent and the prey's EscapeAgent against a real
+``rsal sim maps/hunt*.world --nav vfh`` process on a free loopback port.
+
+The agents run on an :class:`~agents.runtime.AgentHost` in this process (an asyncio loop on a
+background thread); an observer agent records every ``outcome``. (a) NavAgent drives to a goal sent
+on ``new_goal`` and reports ``arrived``; a superseded goal is not reported; an unreachable goal gives
+``arrived`` with ``ok`` false. (b) Two hunters catch one prey within 180 s, after which the prey turns
+on the spot. (c) Four hunters share two prey out by contract net and catch both. (d) ``rsal run
+deploy/scenarios/hunt_prey.yaml --app virtual`` exits 0 with the catch in its summary. Plus argument
+checks without a network. Every wait has a deadline; there are no fixed sleeps.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import threading
+import time
+
+import pytest
+
+from agents.classes import EscapeAgent
+from agents.hunt import FollowAgent, NavAgent
+from agents.registry import resolve
+from agents.runtime import Agent, AgentHost
+from agents.services import NewGoal, Outcome
+from rsal.robot import RobotError
+from rsal.transport import TransportArgs, open_session
+from tests.conftest import MAPS, ROOT, free_port, rsal_cmd, wait_until
+
+
+class LoopThread:
+    """An asyncio loop on a daemon thread; ``run(coro)`` waits for the result."""
+
+    def __init__(self):
+        self.loop = asyncio.new_event_loop()
+        self.t = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.t.start()
+
+    def run(self, coro, timeout: float = 90.0):
+        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
+
+    def close(self):
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.t.join(5)
+        self.loop.close()
+
+
+class Observer(Agent):
+    """Records every ``outcome`` and can send ``new_goal`` messages."""
+
+    def __init__(self, agent_id: str = "observer"):
+        super().__init__(agent_id, period=1.0)
+        self.outcomes: list[tuple[str, Outcome]] = []
+        self._lock = threading.Lock()
+
+    async def created(self):
+        self.subscribe(Outcome.SERVICE, self._on_outcome)
+
+    def _on_outcome(self, msg):
+        with self._lock:
+            self.outcomes.append((msg.sender, msg.body))
+
+    def events(self, event: str) -> list[tuple[str, Outcome]]:
+        with self._lock:
+            return [(s, o) for s, o in self.outcomes if o.event == event]
+
+    def caught(self) -> set[str]:
+        return {o.subject for _, o in self.events("caught")}
+
+
+@pytest.fixture
+def hunt(procs):
+    """Start ``rsal sim WORLD --nav vfh --nav-robots ...``; yields ``start(world, nav_robots)`` which
+    returns an agent host connected to it and its observer."""
+    state: dict = {}
+
+    def start(world: str, nav_robots: str):
+        ep = f"tcp/127.0.0.1:{free_port()}"
+        sim = procs(rsal_cmd("sim", str(MAPS / world), "--listen", ep, "--nav", "vfh", "--nav-robots", nav_robots))
+        lt = LoopThread()
+        session = open_session(TransportArgs(connect=[ep]))
+        host = AgentHost(session)
+        lt.run(host.__aenter__())
+        obs = Observer()
+        lt.run(host.start(obs))
+        state.update(lt=lt, session=session, host=host, sim=sim)
+        return sim, lt, host, obs
+
+    yield start
+    if state:
+        state["lt"].run(state["host"].stop())
+        state["lt"].close()
+        state["session"].close()
+
+
+def _start_all(lt: LoopThread, host: AgentHost, agents: list) -> None:
+    async def go():
+        await asyncio.gather(*(host.start(a) for a in agents))
+
+    lt.run(go(), timeout=120.0)
+
+
+# ---------------------------------------------------------------------------- without a network
+def test_registry_resolves_the_hunt_classes():
+    assert resolve("NavAgent") is NavAgent
+    assert resolve("FollowAgent") is FollowAgent
+
+
+def test_bad_arguments_are_clear_errors():
+    with pytest.raises(TypeError):
+        NavAgent("nav1", robot="r1", bogus=1)
+    with pytest.raises(ValueError, match="a prey robot id is required"):
+        FollowAgent("h1", robot="r1")
+    with pytest.raises(ValueError, match="allocation 'auction' must be 'fixed' or 'contract_net'"):
+        FollowAgent("h1", robot="r1", prey="r0", allocation="auction")
+    with pytest.raises(ValueError, match="capture_distance"):
+        FollowAgent("h1", robot="r1", prey="r0", capture_distance=-1)
+    with pytest.raises(ValueError, match="goal_timeout"):
+        NavAgent("nav1", robot="r1", goal_timeout=0)
+    with pytest.raises(ValueError, match="speed"):
+        EscapeAgent("p0", robot="r0", speed=5)
+    with pytest.raises(ValueError, match=r"pose \[1\] must be \[x, y, degrees\]"):
+        EscapeAgent("p0", robot="r0", pose=[1])
+    FollowAgent("h1", robot="r1", allocation="contract_net")  # no fixed prey needed
+
+
+def test_scenario_file_parses_and_matches_the_classes():
+    from agents.scenario import check_classes, load_scenario
+
+    sc = load_scenario(ROOT / "deploy/scenarios/hunt_prey.yaml")
+    assert set(sc.applications) == {"virtual", "advanced"}
+    for app in sc.applications.values():
+        check_classes(sc, app)
+    v, a = sc.applications["virtual"], sc.applications["advanced"]
+    assert (v.end.event, v.end.count) == ("caught", 1) and (a.end.event, a.end.count) == ("caught", 2)
+    assert sorted(x.robot for x in v.agents if x.type == "hunter") == list(v.simulator.nav_robots) == ["r1", "r2"]
+    assert all(x.args.get("allocation") == "contract_net" for x in a.agents if x.type == "hunter")
+
+
+# ---------------------------------------------------------------------------- with the simulator
+@pytest.mark.timeout(240)
+def test_nav_agent_goes_to_new_goal_reports_arrived_and_unreachable(hunt):
+    sim, lt, host, obs = hunt("hunt.world", "r1,r2")
+    nav = NavAgent("nav1", robot="r1", startup_timeout=60)
+    _start_all(lt, host, [nav])
+
+    def send(x, y):
+        lt.loop.call_soon_threadsafe(obs.publish, NewGoal.SERVICE, NewGoal("nav1", x, y, 0.0))
+
+    def arrived():
+        return [o for s, o in obs.events("arrived") if s == "nav1"]
+
+    # a first goal, superseded at once by a second: only the second one is reported
+    send(-5.0, 1.75)
+    wait_until(lambda: nav.goal is not None and nav.goal.x == -5.0, 10, "nav1 to take the first goal")
+    send(-11.5, 1.75)
+    wait_until(lambda: arrived(), 120, "nav1's arrived outcome")
+    first = arrived()[0]
+    assert first.ok and first.subject == "r1" and "(-11.50, 1.75)" in first.text, first
+    p = nav.nav.position
+    assert math.hypot(p.x + 11.5, p.y - 1.75) < 0.6, p
+    assert nav.reached == 1 and nav.failed == 0
+    assert "goal (-11.50, 1.75) done" in nav.status() and "reached 1" in nav.status()
+
+    # an unreachable goal: inside the server room N5, which has no door
+    send(-1.3, 6.0)
+    wait_until(lambda: len(arrived()) >= 2, 30, "nav1's outcome for the unreachable goal")
+    bad = arrived()[1]
+    assert not bad.ok and "unreachable" in bad.text and "no path" in bad.text, bad
+
+    # a robot without the navigation stack (r0, the prey) is a clear error
+    with pytest.raises(RobotError, match=r"robot 'r0': no planner or localize device appeared within 3 s"):
+        lt.run(host.start(NavAgent("nav0", robot="r0", startup_timeout=3)))
+    assert sim.alive()
+
+
+@pytest.mark.timeout(300)
+def test_two_hunters_catch_the_prey_which_then_spins(hunt):
+    sim, lt, host, obs = hunt("hunt.world", "r1,r2")
+    prey = EscapeAgent("prey0", robot="r0", speed=0.2, simulation=True, startup_timeout=60)
+    hunters = [FollowAgent(f"hunter{i}", robot=f"r{i}", prey="r0", startup_timeout=60) for i in (1, 2)]
+    t0 = time.monotonic()
+    _start_all(lt, host, [prey, *hunters])
+    wait_until(lambda: obs.caught(), 180, "a hunter to catch the prey r0")
+    took = time.monotonic() - t0
+    (sender, out), *more = obs.events("caught")
+    assert out.subject == "r0" and sender in ("hunter1", "hunter2") and not more
+    catcher = next(h for h in hunters if h.id == sender)
+    assert out.text.startswith(f"prey r0 caught by {catcher.robot} after ") and out.text.endswith(" s")
+    print(f"caught after {took:.1f} s wall: {out.text}")
+
+    # the catch was honest: the catcher's localized pose is near the prey's broadcast one
+    me, them = catcher.nav.position, catcher.positions["r0"]
+    assert math.hypot(me.x - them.x, me.y - them.y) <= catcher.capture_distance + 0.5
+
+    # the prey spins: turning on the spot, not translating
+    wait_until(lambda: prey.caught_by == sender, 10, "the prey to hear of its catch")
+    base = prey.pioneer.position2d
+
+    def spinning():
+        v, w = base.velocity
+        return abs(w) > 0.4 and abs(v) < 0.05
+
+    wait_until(spinning, 15, "the prey's position2d to report turning without translating")
+    p0 = base.position
+    turned = [0.0]
+    last = [p0.yaw]
+
+    def turned_half():
+        y = base.position.yaw
+        turned[0] += abs(math.remainder(y - last[0], math.tau))
+        last[0] = y
+        return turned[0] > math.pi / 2
+
+    wait_until(turned_half, 15, "the prey to turn 90 degrees", interval=0.1)
+    p1 = base.position
+    assert math.hypot(p1.x - p0.x, p1.y - p0.y) < 0.1, (p0, p1)
+    assert "spinning" in prey.status()
+    # both hunters stop chasing
+    wait_until(lambda: all(not h.prey for h in hunters), 10, "both hunters to end the chase")
+    assert sim.alive()
+
+
+@pytest.mark.timeout(330)
+def test_advanced_hunters_share_two_prey_by_contract_net_and_catch_both(hunt):
+    sim, lt, host, obs = hunt("hunt_advanced.world", "r2,r3,r4,r5")
+    prey = [EscapeAgent(f"prey{i}", robot=f"r{i}", speed=0.2, simulation=True, startup_timeout=60) for i in (0, 1)]
+    hunters = [
+        FollowAgent(f"hunter{i}", robot=f"r{i}", allocation="contract_net", startup_timeout=60) for i in (2, 3, 4, 5)
+    ]
+    t0 = time.monotonic()
+    _start_all(lt, host, [*prey, *hunters])
+
+    # the allocation: every prey gets hunters, every hunter a prey (two each: ceil(4 / 2))
+    wait_until(lambda: all(h.prey for h in hunters), 30, "every hunter to be given a prey")
+    first = {h.id: h.prey for h in hunters}
+    assert sorted(first.values()) == ["r0", "r0", "r1", "r1"], first
+
+    wait_until(lambda: obs.caught() == {"r0", "r1"}, 240, "the hunters to catch both prey")
+    print(f"both caught after {time.monotonic() - t0:.1f} s wall: {[o.text for _, o in obs.events('caught')]}")
+    wait_until(lambda: all(p.caught_by for p in prey), 10, "both prey to hear of their catch")
+    # nobody chases a caught prey
+    wait_until(lambda: all(not h.prey for h in hunters), 10, "every hunter to end its chase")
+    assert all(set(h.caught) == {"r0", "r1"} for h in hunters)
+    assert sim.alive()
+
+
+@pytest.mark.timeout(330)
+def test_rsal_run_hunt_prey_virtual(procs):
+    run = procs(rsal_cmd("run", "deploy/scenarios/hunt_prey.yaml", "--app", "virtual"))
+    wait_until(lambda: not run.alive(), 300, "rsal run to end", interval=0.5)
+    out = run.output()
+    assert run.p.returncode == 0, out[-3000:]
+    assert "[run] result: ok — prey r0 caught by r" in out, out[-3000:]
+    assert "outcomes: caught 1" in out, out[-3000:]
