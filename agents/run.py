@@ -158,8 +158,15 @@ class Runner:
         self.phase = "start"
         self.session = None
         self._handles: list = []
+        # Zenoh settings every process of the run gets: a --config file (e.g. the secured profile's
+        # fleet.json5, which names the endpoints itself) and --cfg entries (e.g. a shorter lease).
+        self.zenoh_flags: list[str] = ["--config", args.config] if getattr(args, "config", None) else []
+        for item in getattr(args, "cfg", None) or []:
+            self.zenoh_flags += ["--cfg", item]
         if args.connect:
             self.endpoint, self.sim_flag = args.connect, "--connect"
+        elif getattr(args, "config", None) and not args.listen:
+            self.endpoint, self.sim_flag = None, ""  # the config file says where the fabric is
         else:
             self.endpoint = args.listen or f"tcp/127.0.0.1:{_free_port()}"
             self.sim_flag = "--listen"
@@ -172,10 +179,14 @@ class Runner:
 
         from .services import decode_message
 
-        if self.args.connect or self.app.simulator is not None:
+        if self.endpoint is None:
+            targs = TransportArgs()
+        elif self.args.connect or self.app.simulator is not None:
             targs = TransportArgs(connect=[self.endpoint])
         else:  # nobody else listens: the runner is the fabric's meeting point
             targs = TransportArgs(listen=[self.endpoint])
+        targs.config = getattr(self.args, "config", None)
+        targs.cfg = list(getattr(self.args, "cfg", None) or [])
         self.session = open_session(targs)
         q = self.events
 
@@ -231,7 +242,7 @@ class Runner:
 
     def _start_sim(self) -> None:
         s = self.app.simulator
-        flags = [self.sim_flag, self.endpoint]
+        flags = ([self.sim_flag, self.endpoint] if self.endpoint else []) + self.zenoh_flags
         if s.nav:
             flags += ["--nav", s.nav]
         if s.nav_robots:
@@ -246,8 +257,9 @@ class Runner:
     def _start_rest(self, tmp: Path) -> None:
         for i, cfg in enumerate(self.app.servers):
             name = "serve" if len(self.app.servers) == 1 else f"serve{i}"
-            argv = [sys.executable, "-m", "rsal.cli", "serve", str(cfg), "--connect", self.endpoint]
-            self._start(name, "server", argv, f"rsal serve {_rel(cfg)} --connect {self.endpoint}")
+            flags = self._member_flags()
+            argv = [sys.executable, "-m", "rsal.cli", "serve", str(cfg), *flags]
+            self._start(name, "server", argv, " ".join(["rsal serve", _rel(cfg), *flags]))
         from .hostproc import AgentSpec, HostSpec
 
         for group, entries in self.app.groups().items():
@@ -260,9 +272,13 @@ class Runner:
             path = tmp / f"host-{group}.json"
             path.write_text(spec.to_json())
             argv = [sys.executable, "-m", "agents.hostproc", "--spec", str(path), "--name", group]
-            argv += ["--connect", self.endpoint]
+            argv += self._member_flags()
             ids = ", ".join(a.id for a in entries)
             self._start(group, "host", argv, f"agent host with {len(entries)} agent(s): {ids}")
+
+    def _member_flags(self) -> list[str]:
+        """Transport flags of the servers and agent hosts: they join the fabric's endpoint."""
+        return (["--connect", self.endpoint] if self.endpoint else []) + self.zenoh_flags
 
     def _stop_children(self) -> None:
         for kind in ("host", "server", "sim"):
@@ -400,7 +416,8 @@ class Runner:
         old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         t0 = time.monotonic()
         desc = f" ({self.app.description})" if self.app.description else ""
-        self.out.say(f"scenario {self.sc.name}, application {self.app.name}{desc}; fabric {self.endpoint}")
+        where = self.endpoint or f"as configured in {self.args.config}"
+        self.out.say(f"scenario {self.sc.name}, application {self.app.name}{desc}; fabric {where}")
         interrupted = ""
         try:
             with tempfile.TemporaryDirectory(prefix="rsal-run-") as tmp:
@@ -536,6 +553,13 @@ def register(sub) -> None:
     where.add_argument("--connect", metavar="ENDPOINT", help="join a running fabric at ENDPOINT")
     where.add_argument(
         "--listen", metavar="ENDPOINT", help="the fabric's endpoint (default: a free port tcp/127.0.0.1:PORT)"
+    )
+    p.add_argument("--config", metavar="FILE", help="a Zenoh JSON5 configuration for every process of the run")
+    p.add_argument(
+        "--cfg",
+        action="append",
+        metavar="KEY:VALUE",
+        help="a Zenoh configuration entry for every process, e.g. --cfg 'transport/link/tx/lease:3000'",
     )
     p.set_defaults(func=run_scenario)
 

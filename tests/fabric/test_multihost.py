@@ -1,21 +1,24 @@
 """The fabric across hosts: network namespaces made by the test (tests/netns.py) stand in for a
 simulator host, two robot hosts and an agent host on one LAN.
 
-- sim host: ``rsal sim maps/floor.world`` — the robots' bases and lasers;
-- robot host 1 and 2: ``rsal serve`` with r1's / r2's navigation stack (deploy/r0-nav.toml for
-  that robot: mapfile, vfh, amcl, wavefront), requiring their base and laser over the network;
-- agent host: a watcher of the whole fabric (tests/fabric/netwatch.py) and ``rsal goto`` sending
-  r1 across the floor.
+- sim host: ``rsal sim maps/hunt.world`` — the robots' bases and lasers, the simulation;
+- robot host 1 and 2: ``rsal serve`` with the hunters r1's / r2's navigation stack
+  (deploy/r0-nav.toml for that robot: mapfile, vfh, amcl, wavefront), requiring their base and
+  laser over the network;
+- agent host: Hunt and Prey (``rsal run deploy/scenarios/hunt_prey.yaml --app fleet``: the prey
+  on r0, hunters on r1 and r2) and a watcher of the whole fabric (tests/fabric/netwatch.py).
 
-Then robot host 2's cable is pulled: r2's devices are reported lost within the configured Zenoh
-lease (plus the keep-alive slack), while r1 keeps driving and r1's devices stay; when the cable is
-back, r2's devices return without any process being restarted. Skipped, with the reason, where
+While the hunt runs, robot host 2's cable is pulled: r2's devices are reported lost within the
+configured Zenoh lease (plus the keep-alive slack), while r1's devices stay and r1 keeps driving;
+when the cable is back, r2's devices return without any process being restarted, and the hunt
+ends with the prey caught. Skipped, with the reason, where
 namespaces cannot be made (not root, no iproute2).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import re
 import sys
 import time
@@ -30,8 +33,9 @@ pytestmark = pytest.mark.skipif(why is not None, reason=f"no network namespaces 
 
 LEASE_MS = 3000
 TUNING = ["--cfg", f"transport/link/tx/lease:{LEASE_MS}", "--cfg", "transport/link/tx/keep_alive:4"]
-WORLD = MAPS / "floor.world"
-POSES = {"r1": (-5.0, 1.75, 0.0), "r2": (-14.0, 5.5, 180.0)}  # maps/floor.world
+WORLD = MAPS / "hunt.world"
+POSES = {"r1": (-14.0, 1.75, 0.0), "r2": (10.0, 1.75, 180.0)}  # maps/hunt.world
+SCENARIO = ROOT / "deploy" / "scenarios" / "hunt_prey.yaml"
 
 
 def nav_config(tmp_path, robot: str) -> str:
@@ -44,6 +48,13 @@ def nav_config(tmp_path, robot: str) -> str:
     path = tmp_path / f"{robot}-nav.toml"
     path.write_text(text)
     return str(path)
+
+
+def moved(a: list[float] | None, b: list[float] | None) -> float:
+    """Planar distance between two poses (0 while either is unknown)."""
+    if a is None or b is None:
+        return 0.0
+    return math.hypot(a[0] - b[0], a[1] - b[1])
 
 
 class Watch:
@@ -85,6 +96,7 @@ def lan():
     net.close()
 
 
+@pytest.mark.timeout(600)
 def test_a_robot_host_cut_off_is_lost_the_others_continue_and_it_rejoins(lan, tmp_path):
     sim_ip = lan.host("sim")
     r1_ip = lan.host("robot1")
@@ -116,10 +128,13 @@ def test_a_robot_host_cut_off_is_lost_the_others_continue_and_it_rejoins(lan, tm
         stack = {f"{r}:{d}" for r in ("r1", "r2") for d in ("planner:0", "localize:0", "position2d:1", "position2d:2")}
         wait_until(lambda: stack <= watch.alive(), 120, "both robot hosts' navigation stacks across the LAN")
 
-        # r1 drives east along the corridor, planned on robot host 1, commanded from the agent host.
-        goto = start("agents", rsal_cmd("goto", "r1", "4.0", "1.75", "--connect", sim_ep, "--timeout", "300"))
-        start_pose = watch.pose("r1:position2d:2")
-        wait_until(lambda: watch.pose("r1:position2d:2") != start_pose, 60, "r1 to start moving")
+        # The hunt, from the agent host; r1 moves under its hunter.
+        hunt = start(
+            "agents", rsal_cmd("run", str(SCENARIO), "--app", "fleet", "--connect", sim_ep, "--progress", "2", *TUNING)
+        )
+        wait_until(lambda: watch.pose("r1:position2d:0") is not None, 30, "r1's odometry at the agent host")
+        start_pose = watch.pose("r1:position2d:0")
+        wait_until(lambda: moved(watch.pose("r1:position2d:0"), start_pose) > 0.2, 120, "the hunter r1 to start moving")
 
         lan.cut("robot2")
         t_cut = time.monotonic()
@@ -131,18 +146,22 @@ def test_a_robot_host_cut_off_is_lost_the_others_continue_and_it_rejoins(lan, tm
         )
         lost_after = time.monotonic() - t_cut
         assert {a for a in stack if a.startswith("r1:")} <= watch.alive(), "robot host 1's devices were lost too"
-        p1 = watch.pose("r1:position2d:2")
-        wait_until(
-            lambda: (q := watch.pose("r1:position2d:2")) is not None and abs(q[0] - p1[0]) > 0.2,
-            30,
-            "r1 to keep driving while robot host 2 is cut off",
-        )
+        p1 = watch.pose("r1:position2d:0")
+        if hunt.alive():  # the hunt may already be won; r1 drives only while it hunts
+            wait_until(
+                lambda: moved(watch.pose("r1:position2d:0"), p1) > 0.2 or not hunt.alive(),
+                30,
+                "r1 to keep driving while robot host 2 is cut off",
+            )
 
         lan.restore("robot2")
         wait_until(lambda: r2_stack <= watch.alive(), 60, "robot host 2's devices to come back without a restart")
-        assert all(p.alive() for p in procs if p is not goto), "a process died: " + "\n".join(
+        assert all(p.alive() for p in procs if p is not hunt), "a process died: " + "\n".join(
             p.output()[-500:] for p in procs if not p.alive()
         )
+        wait_until(lambda: not hunt.alive(), 300, "the hunt to end")
+        assert hunt.p.returncode == 0, hunt.output()[-3000:]
+        assert re.search(r"prey r0 caught by r[12] after", hunt.output()), hunt.output()[-2000:]
         print(f"r2 lost {lost_after:.1f} s after the cut (lease {LEASE_MS / 1000:g} s)")
     finally:
         for p in procs:
