@@ -62,6 +62,7 @@ class RobotAgent(Agent):
         startup_timeout: float = 30.0,
         simulation: bool = False,
         pose: Sequence[float] | None = None,
+        index: int = 0,
     ):
         if not robot:
             raise ValueError(f"agent {agent_id}: a robot id is required")
@@ -70,6 +71,9 @@ class RobotAgent(Agent):
         self.report_every = float(report_every)
         self.startup_timeout = float(startup_timeout)
         self.simulation = bool(simulation)
+        if isinstance(index, bool) or not isinstance(index, int) or index < 0:
+            raise ValueError(f"agent {agent_id}: index {index!r} must be a device index (an integer >= 0)")
+        self.index = index  # the robot's base: position2d:<index> (thesis 3.5's device index)
         try:
             self.start_pose = Position.from_degrees(*pose) if pose is not None else None
         except (TypeError, ValueError):
@@ -97,7 +101,11 @@ class RobotAgent(Agent):
     def make_robot(self, devices: list) -> Robot:
         """Build the robot from its device proxies (a worker thread); raise :class:`RobotError` while
         a device it needs is missing (the search goes on until ``startup_timeout``)."""
-        return Pioneer(devices, name=self.robot, period=self.period, laser=self.laser)
+        base = [d for d in devices if d.interface == "position2d" and d.index == self.index]
+        if not base:
+            raise RobotError(f"robot {self.robot!r}: no position2d:{self.index} device (its base) yet")
+        rest = [d for d in devices if d.interface != "position2d"]
+        return Pioneer(base + rest, name=self.robot, period=self.period, laser=self.laser)
 
     def _build(self, fabric: Fabric) -> Robot:  # a worker thread
         name = self.robot

@@ -36,6 +36,16 @@ def _positive(text: str) -> float:
     return v
 
 
+def _index(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        v = -1
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a device index (an integer >= 0)")
+    return v
+
+
 def _fail(text: str) -> int:
     print(f"rsal agent: {text}", file=sys.stderr, flush=True)
     return 1
@@ -62,7 +72,11 @@ def run_agent(args: argparse.Namespace) -> int:
         "laser": args.laser,
         "report_every": args.report_every,
         "startup_timeout": args.startup_timeout,
+        "index": args.index,
+        "simulation": args.simulation,
     }
+    if args.pose is not None:
+        common["pose"] = list(args.pose)
     try:
         agent = build_agent(AgentSpec(agent_id, args.cls, robot, dict(args.arg or [])), common)
     except HostError as e:
@@ -101,6 +115,20 @@ def register(sub) -> None:
         help="a constructor argument of the class (repeatable; VALUE is YAML: 2, 1.5, true, [1, 2], r0)",
     )
     p.add_argument("--period", type=_positive, default=0.1, help="control period in seconds (default 0.1)")
+    p.add_argument("--index", type=_index, default=0, help="the robot's base is position2d:INDEX (default 0)")
+    p.add_argument(
+        "--pose",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "DEG"),
+        help="the robot's start pose on the map (m, m, degrees), for robots without localization",
+    )
+    p.add_argument(
+        "--simulation",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="a simulated robot: take its start pose from the simulation (default off)",
+    )
     p.add_argument(
         "--laser", action=argparse.BooleanOptionalAction, default=True, help="use the robot's laser (default on)"
     )

@@ -85,3 +85,33 @@ def test_robot_not_found_is_one_line_error(procs):
     lines = [line for line in p.output().splitlines() if not line.startswith("[agent] starting")]
     assert p.p.returncode == 1
     assert len(lines) == 1 and lines[0].startswith("rsal agent: robot 'r9'") and "1 s" in lines[0]
+
+
+def test_robot_agents_take_the_thesis_arguments_index_pose_simulation():
+    import pytest
+
+    from agents.classes import WallfollowAgent
+
+    a = WallfollowAgent("wf", robot="r0", index=1, pose=[1.0, 2.0, 90.0], simulation=True, laser=False)
+    assert (a.index, a.simulation, a.laser) == (1, True, False)
+    assert (a.start_pose.x, a.start_pose.y) == (1.0, 2.0) and abs(a.start_pose.yaw - math.pi / 2) < 1e-9
+    for bad in ({"index": -1}, {"index": True}, {"index": 1.5}):
+        with pytest.raises(ValueError, match="index"):
+            WallfollowAgent("wf", robot="r0", **bad)
+    with pytest.raises(ValueError, match=r"pose .* must be \[x, y, degrees\]"):
+        WallfollowAgent("wf", robot="r0", pose=[1.0, 2.0])
+
+
+def test_the_base_is_the_position2d_of_the_given_index():
+    from agents.classes import WallfollowAgent
+    from rsal.robot import RobotError
+
+    class Dev:
+        def __init__(self, interface, index):
+            self.interface, self.index = interface, index
+
+    a = WallfollowAgent("wf", robot="r0", index=2)
+    import pytest
+
+    with pytest.raises(RobotError, match="no position2d:2"):
+        a.make_robot([Dev("position2d", 0), Dev("laser", 0)])
