@@ -1,9 +1,10 @@
 """The ``rsal`` command line.
 
-``rsal`` itself knows the commands of the RSAL layer (``ls``, ``goto``, ``router``); the other layers add theirs through
-the ``rsal.commands`` entry-point group (``serve`` and ``sim`` from ``mrs_bridge``, ``demo`` from
-``agents``), so this package never imports the layers above or beside it. Each entry point is a
-function ``register(subparsers)`` that adds a sub-command whose ``func(args) -> int`` runs it.
+``rsal`` itself knows the commands of the RSAL layer (``ls``, ``goto``, ``router``, ``watch``); the other
+layers add theirs through the ``rsal.commands`` entry-point group (``serve`` and ``sim`` from
+``mrs_bridge``, ``demo`` from ``agents``), so this package never imports the layers above or beside
+it. Each entry point is a function ``register(subparsers)`` that adds a sub-command whose
+``func(args) -> int`` runs it.
 
 User errors (bad files, bad flags, nothing to talk to) print one line on stderr and exit 1;
 Ctrl-C exits 130 after a clean stop.
@@ -188,6 +189,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .router import register as register_router
 
     register_router(sub)
+    from .watch import register as register_watch
+
+    register_watch(sub)
     for ep in sorted(entry_points(group="rsal.commands"), key=lambda e: e.name):
         try:
             ep.load()(sub)
