@@ -1,0 +1,244 @@
+"""Swarm: N robots and N agents broadcasting positions at 2 Hz (thesis 4.2.3, "100 robots").
+
+For each N of ``--robots``: ``rsal sim`` runs a crowd of N sonar Pioneers in the 128 m arena
+(:func:`agents.swarm.crowd_world`) in one process; one agent host process runs N
+:class:`agents.swarm.SwarmAgent` (one Zenoh session, one shared control thread, one shared
+``send_position`` subscriber), each wall-following/dispersing its robot and broadcasting its pose
+every 0.5 s while every agent receives every other's. After ``--warmup`` seconds the figures are
+taken over ``--seconds`` wall seconds; then the broadcasts stop and every receiver's count from
+every sender is compared with what the sender sent (exact delivery, no sampling).
+
+Figures: published and delivered messages per second, delivery ratio, latency p50/p99/max
+(receive wall time - the message's ``time``, log bins: an upper bound within 26 %), the
+simulator's real-time factor (simulated / wall time, from its ``simulation`` device), the share
+of the agents' 100 ms control period the shared control thread is busy, control cycles that
+overran, and the CPU use of both processes. *Real time* means the simulator keeps >= 0.95 of real
+time and fewer than 5 % of control cycles overrun.
+
+Baseline in the same run (``--baseline``, on by default): the same N agents in one host with no
+robots and no simulator, broadcasting a fixed pose: the messaging alone.
+
+Output: ``bench=swarm key=value ...`` lines. Usage:
+``python benchmarks/bench_swarm.py --robots 100,200,500 --seconds 30``
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+
+# ---------------------------------------------------------------------------- the agent host
+def _cpu_seconds(pid: int) -> float:
+    try:
+        f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return float("nan")
+
+
+async def _host(args) -> dict:
+    from agents.runtime import AgentHost
+    from agents.services import SendPosition
+    from agents.swarm import LatencyHistogram, SwarmAgent, _Hub
+    from rsal.client import Fabric
+    from rsal.transport import TransportArgs
+
+    class BareAgent(SwarmAgent):
+        """Broadcasts a fixed pose; no robot (the messaging baseline)."""
+
+        async def created(self) -> None:
+            self._hub = _Hub.attach(self._require_host(), self)
+            self._hub.listen()
+            self.frame = "map"
+            loop = asyncio.get_running_loop()
+            self._next_report = loop.time() + (hash(self.id) % 1000) / 1000 * self.report_every
+            self._next_stats = loop.time() + 1e9
+
+        def pose_message(self):
+            return SendPosition(self.robot, 1.0, 2.0, 0.0, "map")
+
+        async def killed(self) -> None:
+            if self._hub is not None:
+                self._hub.detach(self)
+
+    n = args.robots
+    bare = args.mode == "bare"
+    cls = BareAgent if bare else SwarmAgent
+    transport = TransportArgs(listen=[args.connect]) if bare else TransportArgs(connect=[args.connect])
+    async with AgentHost.connect(transport) as host:
+        t0 = time.perf_counter()
+        agents = [cls(f"swarm{i}", robot=f"r{i}", startup_timeout=300, stats_every=0) for i in range(n)]
+        await asyncio.gather(*(host.start(a) for a in agents))
+        startup = time.perf_counter() - t0
+        sim = None
+        if not bare:
+            fab = Fabric(host.session, own_session=False)
+            sim = fab.device("sim:simulation:0")
+            await asyncio.to_thread(sim.wait_for_data, 30.0)
+        await asyncio.sleep(args.warmup)
+
+        def snapshot():
+            hub = agents[0]._hub
+            return {
+                "t": time.perf_counter(),
+                "cpu": time.process_time(),
+                "sent": sum(a.sent for a in agents),
+                "recv": sum(a.received for a in agents),
+                "sim_t": sim.latest.t if sim is not None else 0.0,
+                "cycles": hub.cycles,
+                "busy": hub.busy_s,
+                "overruns": hub.overruns,
+            }
+
+        for a in agents:  # measure latency over the window only
+            a.latency = LatencyHistogram()
+        s0 = snapshot()
+        sim_cpu0 = _cpu_seconds(args.sim_pid) if args.sim_pid else float("nan")
+        await asyncio.sleep(args.seconds)
+        s1 = snapshot()
+        sim_cpu1 = _cpu_seconds(args.sim_pid) if args.sim_pid else float("nan")
+        hist = LatencyHistogram()
+        for a in agents:
+            hist.merge(a.latency)
+        for a in agents:
+            a.stop_broadcast()
+        sent = {a.id: a.sent for a in agents}
+
+        def counts():
+            got = want = 0
+            for a in agents:
+                for s, c in sent.items():
+                    if s != a.id:
+                        first, _last, rec = a.senders.get(s, [0, -1, 0])
+                        got += rec
+                        want += c - first
+            return got, want
+
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            got, want = counts()
+            if got >= want:
+                break
+            await asyncio.sleep(0.1)
+        got, want = counts()
+        wall = s1["t"] - s0["t"]
+        cycles = max(1, s1["cycles"] - s0["cycles"])
+        return {
+            "robots": n,
+            "mode": args.mode,
+            "startup_s": round(startup, 1),
+            "publish_per_s": round((s1["sent"] - s0["sent"]) / wall, 1),
+            "deliver_per_s": round((s1["recv"] - s0["recv"]) / wall, 1),
+            "delivered": got,
+            "expected": want,
+            "delivery_pct": round(100.0 * got / want, 4) if want else 0.0,
+            "p50_ms": round(1000 * hist.quantile(0.5), 2),
+            "p99_ms": round(1000 * hist.quantile(0.99), 2),
+            "max_ms": round(1000 * hist.max_s, 1),
+            "rtf": round((s1["sim_t"] - s0["sim_t"]) / wall, 3) if sim is not None else None,
+            "control_load": round((s1["busy"] - s0["busy"]) / (cycles * 0.1), 3) if not bare else None,
+            "overrun_pct": round(100.0 * (s1["overruns"] - s0["overruns"]) / cycles, 2) if not bare else None,
+            "host_cpu": round((s1["cpu"] - s0["cpu"]) / wall, 2),
+            "sim_cpu": round((sim_cpu1 - sim_cpu0) / wall, 2) if args.sim_pid else None,
+        }
+
+
+def host_main(args) -> None:
+    print("RESULT " + json.dumps(asyncio.run(_host(args))), flush=True)
+
+
+# ---------------------------------------------------------------------------- the driver
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _run_host(n: int, mode: str, ep: str, args, sim_pid: int = 0) -> dict:
+    cmd = [sys.executable, __file__, "--role", "host", "--mode", mode, "--robots", str(n), "--connect", ep]
+    cmd += ["--seconds", str(args.seconds), "--warmup", str(args.warmup), "--sim-pid", str(sim_pid)]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.seconds + args.warmup + 600, cwd=ROOT)
+    for line in p.stdout.splitlines():
+        if line.startswith("RESULT "):
+            return json.loads(line[7:])
+    raise RuntimeError(f"agent host for {n} robots failed (exit {p.returncode}):\n{p.stderr[-2000:]}")
+
+
+def _line(r: dict) -> str:
+    return "bench=swarm " + " ".join(f"{k}={v}" for k, v in r.items() if v is not None)
+
+
+def run(args) -> None:
+    from agents.swarm import write_crowd_world
+
+    largest = None
+    for n in args.robot_list:
+        if args.baseline:
+            ep = f"tcp/127.0.0.1:{_free_port()}"
+            r = _run_host(n, "bare", ep, args)  # no simulator: the host listens on its own port
+            print(_line(r), flush=True)
+        with tempfile.TemporaryDirectory() as tmp:
+            world = write_crowd_world(Path(tmp) / f"crowd{n}.world", n, seed=args.seed)
+            ep = f"tcp/127.0.0.1:{_free_port()}"
+            sim = subprocess.Popen(
+                [sys.executable, "-m", "rsal.cli", "sim", str(world), "--listen", ep, "--no-map"],
+                cwd=ROOT,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                start_new_session=True,
+            )
+            try:
+                r = _run_host(n, "robots", ep, args, sim.pid)
+            finally:
+                sim.terminate()
+                try:
+                    sim.wait(10)
+                except subprocess.TimeoutExpired:
+                    sim.kill()
+                    sim.wait(5)
+        realtime = (r["rtf"] or 0) >= 0.95 and (r["overrun_pct"] or 0) < 5.0
+        r["realtime"] = realtime
+        print(_line(r), flush=True)
+        if realtime:
+            largest = n
+    print(f"bench=swarm summary largest_realtime={largest}", flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--robots", default="100", help="comma-separated robot counts (default 100)")
+    ap.add_argument("--seconds", type=float, default=30.0, help="measured wall seconds per run (default 30)")
+    ap.add_argument("--warmup", type=float, default=5.0, help="seconds after start-up before measuring")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the crowd's headings")
+    ap.add_argument("--no-baseline", dest="baseline", action="store_false", help="skip the messaging baseline")
+    ap.add_argument("--role", choices=["main", "host"], default="main", help=argparse.SUPPRESS)
+    ap.add_argument("--mode", choices=["robots", "bare"], default="robots", help=argparse.SUPPRESS)
+    ap.add_argument("--connect", default="", help=argparse.SUPPRESS)
+    ap.add_argument("--sim-pid", type=int, default=0, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.role == "host":
+        args.robots = int(args.robots)
+        host_main(args)
+        return
+    try:
+        args.robot_list = [int(x) for x in args.robots.split(",") if x.strip()]
+    except ValueError:
+        sys.exit(f"bench_swarm: --robots {args.robots!r} must be comma-separated integers, e.g. 100,200")
+    run(args)
+
+
+if __name__ == "__main__":
+    main()
