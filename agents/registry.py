@@ -23,6 +23,7 @@ CLASS_MODULES: dict[str, str] = {
     "SwarmAgent": "agents.swarm",
     "SwarmMonitor": "agents.swarm",
     "DispersionAgent": "agents.distribution",
+    "ViewAgent": "agents.mixed",
 }
 
 

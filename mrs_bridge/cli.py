@@ -5,6 +5,8 @@ sub-commands through the ``rsal.commands`` entry points).
 ``rsal sim`` is the shorthand of DESIGN "Processes": one server with the simulator in-process,
 a ``simulation`` driver on node ``sim``, the floorplan as ``sim:map:0`` and one ``sim`` driver per
 robot model, whose devices live on the node named after the model (``r0:position2d:0``...).
+``--node NAME`` puts the simulation and map devices on another node, so that two simulators (e.g.
+a virtual world and the stand-in for reality of a mixed-reality run, thesis 4.3) share one fabric.
 Both stop cleanly on SIGTERM or Ctrl-C: motors stopped, tokens withdrawn, session closed.
 """
 
@@ -85,14 +87,21 @@ def _serve(args: argparse.Namespace) -> int:
 
 
 def sim_config(
-    world, *, map_device: bool = True, source: str = "", nav: str | None = None, nav_robots: list[str] | None = None
+    world,
+    *,
+    map_device: bool = True,
+    source: str = "",
+    nav: str | None = None,
+    nav_robots: list[str] | None = None,
+    node: str = "sim",
 ) -> ServerConfig:
     """The server configuration of ``rsal sim`` for a loaded :class:`simulator.world.World`.
 
     With ``nav`` (``"vfh"``, ``"nd"`` or ``"snd"``) every robot with a laser (or those named in
     ``nav_robots``) also gets the navigation stack of thesis appendix A.3: ``amcl`` (localize:0,
     position2d:2, started at the robot's true pose), the local planner (position2d:1) and
-    ``wavefront`` (planner:0), all on the simulated floorplan ``sim:map:0``.
+    ``wavefront`` (planner:0), all on the simulated floorplan ``sim:map:0``. ``node`` names the node
+    of the simulation and map devices (default ``sim``).
     """
     from rsal.keys import DeviceAddr, parse_device
 
@@ -108,9 +117,10 @@ def sim_config(
             f"{source or 'sim'}: {name} {node}",
         )
 
-    drivers = [block("simulation", "sim", [("simulation", 0)])]
+    map_addr = f"{node}:map:0"
+    drivers = [block("simulation", node, [("simulation", 0)])]
     if map_device and world.grid is not None:
-        drivers.append(block("simmap", "sim", [("map", 0)]))
+        drivers.append(block("simmap", node, [("map", 0)]))
     for name in world.robot_names:
         spec = world.model_spec(name)
         prov = [("position2d", 0)]
@@ -125,7 +135,7 @@ def sim_config(
         drivers.append(block("sim", name, prov, model=name))
     if nav:
         if world.grid is None or not map_device:
-            raise ConfigError(f"{source}: --nav needs the world's floorplan served as sim:map:0")
+            raise ConfigError(f"{source}: --nav needs the world's floorplan served as {map_addr}")
         wanted = set(nav_robots) if nav_robots else None
         if wanted:
             unknown = sorted(wanted - set(world.robot_names))
@@ -147,7 +157,7 @@ def sim_config(
                     "amcl",
                     name,
                     [("localize", 0), ("position2d", 2)],
-                    [f"odometry::{name}:position2d:0", rng, "sim:map:0"],
+                    [f"odometry::{name}:position2d:0", rng, map_addr],
                     init_pose=[x, y, math.degrees(a)],
                     init_pose_var=[0.05, 0.05, math.degrees(math.radians(5) ** 2)],
                     **profile.AMCL,
@@ -161,11 +171,11 @@ def sim_config(
                     "wavefront",
                     name,
                     [("planner", 0)],
-                    [f"output::{name}:position2d:1", f"input::{name}:position2d:2", "sim:map:0"],
+                    [f"output::{name}:position2d:1", f"input::{name}:position2d:2", map_addr],
                     **profile.WAVEFRONT,
                 )
             )
-    return ServerConfig(node="sim", drivers=drivers, source=source)
+    return ServerConfig(node=node, drivers=drivers, source=source)
 
 
 def _sim(args: argparse.Namespace) -> int:
@@ -187,7 +197,12 @@ def _sim(args: argparse.Namespace) -> int:
         return 1
     try:
         cfg = sim_config(
-            world, map_device=not args.no_map, source=str(args.world), nav=args.nav, nav_robots=args.nav_robots
+            world,
+            map_device=not args.no_map,
+            source=str(args.world),
+            nav=args.nav,
+            nav_robots=args.nav_robots,
+            node=args.node,
         )
     except ConfigError as e:
         print(f"rsal sim: {e}", file=sys.stderr)
@@ -212,6 +227,16 @@ def _positive(text: str) -> float:
     return v
 
 
+def _node_name(text: str) -> str:
+    from rsal.keys import DeviceAddr
+
+    try:
+        DeviceAddr(text, "simulation", 0)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a node name ({e})") from None
+    return text
+
+
 def register_serve(sub) -> None:
     p = sub.add_parser("serve", help="run a device server from a TOML driver configuration")
     p.add_argument("config_file", metavar="CONFIG", help="TOML file of [[driver]] blocks (see docs/configuration.md)")
@@ -233,7 +258,13 @@ def register_sim(sub) -> None:
     pace.add_argument("--speedup", type=_positive, help="times real time (default: the world's)")
     pace.add_argument("--fast", action="store_true", help="as fast as possible")
     p.add_argument("--seed", type=int, help="random seed (default: the world's)")
-    p.add_argument("--no-map", action="store_true", help="do not serve the floorplan as sim:map:0")
+    p.add_argument("--no-map", action="store_true", help="do not serve the floorplan as NODE:map:0")
+    p.add_argument(
+        "--node",
+        type=_node_name,
+        default="sim",
+        help="node of the simulation and map devices (default sim); another name lets two simulators share a fabric",
+    )
     p.add_argument(
         "--nav",
         choices=("vfh", "nd", "snd"),  # mrs_bridge.nav.profile.LOCAL_PLANNERS
