@@ -247,26 +247,11 @@ class EscapeAgent(WallfollowAgent):
         self,
         agent_id: str,
         *,
-        robot: str,
-        period: float = 0.1,
-        laser: bool = True,
-        report_every: float = 1.0,
-        startup_timeout: float = 30.0,
-        simulation: bool = False,
-        pose: Sequence[float] | None = None,
         speed: float | None = None,
         spin_rate: float = 0.8,
+        **kw,
     ):
-        super().__init__(
-            agent_id,
-            robot=robot,
-            period=period,
-            laser=laser,
-            report_every=report_every,
-            startup_timeout=startup_timeout,
-            simulation=simulation,
-            pose=pose,
-        )
+        super().__init__(agent_id, **kw)
         if speed is not None and (isinstance(speed, bool) or not isinstance(speed, int | float) or not 0 < speed <= 2):
             raise ValueError(f"agent {agent_id}: speed {speed!r} must be a number in (0, 2] m/s")
         if isinstance(spin_rate, bool) or not isinstance(spin_rate, int | float) or not 0 < spin_rate <= 3:

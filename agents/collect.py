@@ -136,27 +136,12 @@ class ExploreAgent(WallfollowAgent):
         self,
         agent_id: str,
         *,
-        robot: str,
-        period: float = 0.1,
-        laser: bool = True,
-        report_every: float = 1.0,
-        startup_timeout: float = 30.0,
-        simulation: bool = False,
-        pose: Sequence[float] | None = None,
         side: str = "left",
         merge_dist: float = 0.5,
         repeat_every: float = 10.0,
+        **kw,
     ):
-        super().__init__(
-            agent_id,
-            robot=robot,
-            period=period,
-            laser=laser,
-            report_every=report_every,
-            startup_timeout=startup_timeout,
-            simulation=simulation,
-            pose=pose,
-        )
+        super().__init__(agent_id, **kw)
         if side not in ("left", "right"):
             raise ValueError(f"agent {agent_id}: side {side!r} must be 'left' or 'right'")
         self.side = side
@@ -249,24 +234,13 @@ class CollectAgent(RobotAgent):
         self,
         agent_id: str,
         *,
-        robot: str,
-        period: float = 0.1,
-        laser: bool = True,
-        report_every: float = 1.0,
-        startup_timeout: float = 30.0,
         home: Sequence[float] | None = None,
         approach: float = 0.8,
         goto_timeout: float = 180.0,
         creep_speed: float = 0.12,
+        **kw,
     ):
-        super().__init__(
-            agent_id,
-            robot=robot,
-            period=period,
-            laser=laser,
-            report_every=report_every,
-            startup_timeout=startup_timeout,
-        )
+        super().__init__(agent_id, **kw)
         self.home = _point(agent_id, "home", home)
         self.approach = _number(agent_id, "approach", approach, 0.3, 3.0)
         self.goto_timeout = _number(agent_id, "goto_timeout", goto_timeout, 0.0, 3600.0)

@@ -31,7 +31,6 @@ import asyncio
 import logging
 import math
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 from rsal.data import Position
@@ -83,25 +82,10 @@ class NavAgent(RobotAgent):
         self,
         agent_id: str,
         *,
-        robot: str,
-        period: float = 0.1,
-        laser: bool = True,
-        report_every: float = 1.0,
-        startup_timeout: float = 30.0,
-        simulation: bool = False,
-        pose: Sequence[float] | None = None,
         goal_timeout: float = 300.0,
+        **kw,
     ):
-        super().__init__(
-            agent_id,
-            robot=robot,
-            period=period,
-            laser=laser,
-            report_every=report_every,
-            startup_timeout=startup_timeout,
-            simulation=simulation,
-            pose=pose,
-        )
+        super().__init__(agent_id, **kw)
         self.goal_timeout = _number(agent_id, "goal_timeout", goal_timeout, 0.0)
         self.goal: Position | None = None  # the goal being driven to
         self.goal_state = "idle"  # idle, driving, or the status of the last GoalResult
@@ -275,31 +259,14 @@ class FollowAgent(NavAgent):
         self,
         agent_id: str,
         *,
-        robot: str,
-        period: float = 0.1,
-        laser: bool = True,
-        report_every: float = 1.0,
-        startup_timeout: float = 30.0,
-        simulation: bool = False,
-        pose: Sequence[float] | None = None,
-        goal_timeout: float = 300.0,
         prey: str = "",
         allocation: str = "fixed",
         capture_distance: float = 1.0,
         replan_distance: float = 0.75,
         replan_interval: float = 1.0,
+        **kw,
     ):
-        super().__init__(
-            agent_id,
-            robot=robot,
-            period=period,
-            laser=laser,
-            report_every=report_every,
-            startup_timeout=startup_timeout,
-            simulation=simulation,
-            pose=pose,
-            goal_timeout=goal_timeout,
-        )
+        super().__init__(agent_id, **kw)
         if allocation not in ("fixed", "contract_net"):
             raise ValueError(f"agent {agent_id}: allocation {allocation!r} must be 'fixed' or 'contract_net'")
         if not isinstance(prey, str):

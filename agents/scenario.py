@@ -374,19 +374,31 @@ def _end(c: _Ctx, where: str, raw: Any) -> End:
 
 # ---------------------------------------------------------------------------- classes and arguments
 def _accepts(cls: type) -> tuple[set[str], bool]:
-    """The keyword names ``cls(agent_id, ...)`` accepts and whether it takes ``**kwargs``."""
-    try:
-        sig = inspect.signature(cls)
-    except (TypeError, ValueError):
-        return set(), True
-    names = set()
-    var_kw = False
-    for i, p in enumerate(sig.parameters.values()):
-        if p.kind is p.VAR_KEYWORD:
-            var_kw = True
-        elif p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and i > 0:
-            names.add(p.name)
-    return names, var_kw
+    """The keyword names ``cls(agent_id, ...)`` accepts and whether it takes any keyword at all.
+
+    A constructor with ``**kwargs`` passes them on to its base class's (``super().__init__(agent_id,
+    **kw)``), so the names of the bases' constructors count too, down the MRO, until one that takes
+    no ``**kwargs``; only if every constructor on the way does is the answer "anything"."""
+    names: set[str] = set()
+    for klass in cls.__mro__:
+        init = klass.__dict__.get("__init__")
+        if init is None:
+            continue
+        if klass is object:
+            return names, True
+        try:
+            sig = inspect.signature(init)
+        except (TypeError, ValueError):
+            return names, True
+        var_kw = False
+        for i, p in enumerate(sig.parameters.values()):
+            if p.kind is p.VAR_KEYWORD:
+                var_kw = True
+            elif p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and i > 1:  # after self, agent_id
+                names.add(p.name)
+        if not var_kw:
+            return names, False
+    return names, True
 
 
 def constructor_kwargs(cls: type, robot: str, global_args: dict[str, Any], args: dict[str, Any]) -> dict[str, Any]:

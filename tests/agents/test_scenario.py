@@ -247,3 +247,17 @@ def test_the_demo_scenario_is_valid():
         check_classes(sc, app)
         assert app.simulator.world == (MAPS / "testroom.world").resolve()
         assert app.end.duration == 20
+
+
+def test_constructor_arguments_are_read_down_the_mro_through_kwargs():
+    from agents.classes import EscapeAgent, WallfollowAgent
+    from agents.scenario import _accepts, constructor_kwargs
+
+    base, open_base = _accepts(WallfollowAgent)
+    names, open_ = _accepts(EscapeAgent)  # (agent_id, *, speed, spin_rate, **kw) -> RobotAgent's
+    assert not open_ and not open_base
+    assert names == base | {"speed", "spin_rate"}
+    kw = constructor_kwargs(EscapeAgent, "r0", {"index": 1, "report_every": 2.0, "unknown_global": 3}, {"speed": 0.2})
+    assert kw == {"robot": "r0", "index": 1, "report_every": 2.0, "speed": 0.2}
+    agent = EscapeAgent("prey", **kw)
+    assert (agent.index, agent.report_every, agent.speed) == (1, 2.0, 0.2)
