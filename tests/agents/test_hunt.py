@@ -5,9 +5,9 @@ The agents run on an :class:`~agents.runtime.AgentHost` in this process (an asyn
 background thread); an observer agent records every ``outcome``. (a) NavAgent drives to a goal sent
 on ``new_goal`` and reports ``arrived``; a superseded goal is not reported; an unreachable goal gives
 ``arrived`` with ``ok`` false. (b) Two hunters catch one prey within 180 s, after which the prey turns
-on the spot. (c) Four hunters share two prey out by contract net and catch both. (d) ``rsal run
-deploy/scenarios/hunt_prey.yaml --app virtual`` exits 0 with the catch in its summary. Plus argument
-checks without a network. Every wait has a deadline; there are no fixed sleeps.
+on the spot. (c) Four hunters share two prey out by contract net and catch both. The scenario file
+runs under ``rsal run`` in tests/fabric/test_multihost.py (across hosts) and in the control page's
+browser test. Plus argument checks without a network. Every wait has a deadline; there are no fixed sleeps.
 """
 
 from __future__ import annotations
@@ -244,13 +244,3 @@ def test_advanced_hunters_share_two_prey_by_contract_net_and_catch_both(hunt):
     wait_until(lambda: all(not h.prey for h in hunters), 10, "every hunter to end its chase")
     assert all(set(h.caught) == {"r0", "r1"} for h in hunters)
     assert sim.alive()
-
-
-@pytest.mark.timeout(330)
-def test_rsal_run_hunt_prey_virtual(procs):
-    run = procs(rsal_cmd("run", "deploy/scenarios/hunt_prey.yaml", "--app", "virtual"))
-    wait_until(lambda: not run.alive(), 300, "rsal run to end", interval=0.5)
-    out = run.output()
-    assert run.p.returncode == 0, out[-3000:]
-    assert "[run] result: ok — prey r0 caught by r" in out, out[-3000:]
-    assert "outcomes: caught 1" in out, out[-3000:]
