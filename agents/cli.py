@@ -18,22 +18,12 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import math
 import sys
 
+from rsal.cliutil import positive
 from rsal.transport import TransportArgs, add_transport_args
 
 __all__ = ["register", "run_agent"]
-
-
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        v = math.nan
-    if not (v > 0 and math.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number")
-    return v
 
 
 def _index(text: str) -> int:
@@ -114,7 +104,7 @@ def register(sub) -> None:
         metavar="KEY=VALUE",
         help="a constructor argument of the class (repeatable; VALUE is YAML: 2, 1.5, true, [1, 2], r0)",
     )
-    p.add_argument("--period", type=_positive, default=0.1, help="control period in seconds (default 0.1)")
+    p.add_argument("--period", type=positive, default=0.1, help="control period in seconds (default 0.1)")
     p.add_argument("--index", type=_index, default=0, help="the robot's base is position2d:INDEX (default 0)")
     p.add_argument(
         "--pose",
@@ -132,10 +122,10 @@ def register(sub) -> None:
     p.add_argument(
         "--laser", action=argparse.BooleanOptionalAction, default=True, help="use the robot's laser (default on)"
     )
-    p.add_argument("--duration", type=_positive, help="seconds to run (default: until SIGINT/SIGTERM)")
-    p.add_argument("--report-every", type=_positive, default=5.0, help="seconds between progress lines (default 5)")
+    p.add_argument("--duration", type=positive, help="seconds to run (default: until SIGINT/SIGTERM)")
+    p.add_argument("--report-every", type=positive, default=5.0, help="seconds between progress lines (default 5)")
     p.add_argument(
-        "--startup-timeout", type=_positive, default=30.0, help="seconds to wait for the robot's devices (default 30)"
+        "--startup-timeout", type=positive, default=30.0, help="seconds to wait for the robot's devices (default 30)"
     )
     add_transport_args(p)
     p.set_defaults(func=run_agent)

@@ -10,13 +10,13 @@ robot travelled at least ``--min-distance`` metres, 1 otherwise; Ctrl-C stops ev
 from __future__ import annotations
 
 import argparse
-import math
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+from rsal.cliutil import positive
 from rsal.transport import DEFAULT_ENDPOINT, TransportArgs, port_free
 
 __all__ = ["register", "run_demo"]
@@ -121,20 +121,13 @@ def _drain(p: subprocess.Popen) -> str:
     return "\n".join(out.strip().splitlines()[-15:])
 
 
-def _positive(text: str) -> float:
-    v = float(text)
-    if not (v > 0 and math.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number")
-    return v
-
-
 def register(sub) -> None:
     p = sub.add_parser("demo", help="run the embedded default: simulator, robots and wall-following, headless")
     p.add_argument("--world", default=str(DEFAULT_WORLD), help="world file (default maps/floor.world)")
-    p.add_argument("--duration", type=_positive, default=30.0, help="wall seconds to run (default 30)")
-    p.add_argument("--speedup", type=_positive, default=2.0, help="simulation speed-up (default 2)")
+    p.add_argument("--duration", type=positive, default=30.0, help="wall seconds to run (default 30)")
+    p.add_argument("--speedup", type=positive, default=2.0, help="simulation speed-up (default 2)")
     p.add_argument("--endpoint", default=DEFAULT_ENDPOINT, help=f"loopback endpoint (default {DEFAULT_ENDPOINT})")
-    p.add_argument("--report-every", type=_positive, default=5.0, help="seconds between progress lines")
+    p.add_argument("--report-every", type=positive, default=5.0, help="seconds between progress lines")
     p.add_argument("--min-distance", type=float, default=2.0, help="metres each robot must travel (default 2)")
-    p.add_argument("--startup-timeout", type=_positive, default=60.0, help=argparse.SUPPRESS)
+    p.add_argument("--startup-timeout", type=positive, default=60.0, help=argparse.SUPPRESS)
     p.set_defaults(func=run_demo)

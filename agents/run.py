@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import math
 import os
 import queue
 import signal
@@ -36,6 +35,8 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from rsal.cliutil import positive
 
 from .scenario import Application, Scenario, ScenarioError, check_classes, load_scenario, parse_set
 
@@ -518,16 +519,6 @@ def run_scenario(args: argparse.Namespace) -> int:
     return Runner(sc, app, args, _Out()).run()
 
 
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        v = math.nan
-    if not (v > 0 and math.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number of seconds")
-    return v
-
-
 def register(sub) -> None:
     p = sub.add_parser("run", help="start an application of a scenario file and judge the run")
     p.add_argument(
@@ -541,11 +532,11 @@ def register(sub) -> None:
         metavar="KEY=VALUE",
         help="override a global argument (repeatable; VALUE is YAML: 2, 1.5, true, r0)",
     )
-    p.add_argument("--timeout", type=_positive, help="seconds after which the run fails (default: the end's timeout)")
-    p.add_argument("--progress", type=_positive, default=5.0, help="seconds between progress lines (default 5)")
+    p.add_argument("--timeout", type=positive, help="seconds after which the run fails (default: the end's timeout)")
+    p.add_argument("--progress", type=positive, default=5.0, help="seconds between progress lines (default 5)")
     p.add_argument(
         "--host-report",
-        type=_positive,
+        type=positive,
         default=30.0,
         help="seconds between the agent hosts' own progress lines (default 30)",
     )

@@ -19,6 +19,7 @@ import signal
 import sys
 import time
 
+from rsal.cliutil import positive
 from rsal.transport import TransportArgs, add_transport_args, open_session
 
 from .config import ConfigError, DriverConfig, ServerConfig, load_config
@@ -220,13 +221,6 @@ def _sim(args: argparse.Namespace) -> int:
     return rc
 
 
-def _positive(text: str) -> float:
-    v = float(text)
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be positive")
-    return v
-
-
 def _node_name(text: str) -> str:
     from rsal.keys import DeviceAddr
 
@@ -243,7 +237,7 @@ def register_serve(sub) -> None:
     p.add_argument("--node", help="node name for devices written without one (overrides [server] node)")
     p.add_argument(
         "--require-timeout",
-        type=_positive,
+        type=positive,
         default=30.0,
         help="seconds a driver waits for its required devices (default 30)",
     )
@@ -255,7 +249,7 @@ def register_sim(sub) -> None:
     p = sub.add_parser("sim", help="run the simulator with one device server for all its robots")
     p.add_argument("world", metavar="WORLD", help="a Stage .world or YAML world file, e.g. maps/floor.world")
     pace = p.add_mutually_exclusive_group()
-    pace.add_argument("--speedup", type=_positive, help="times real time (default: the world's)")
+    pace.add_argument("--speedup", type=positive, help="times real time (default: the world's)")
     pace.add_argument("--fast", action="store_true", help="as fast as possible")
     p.add_argument("--seed", type=int, help="random seed (default: the world's)")
     p.add_argument("--no-map", action="store_true", help="do not serve the floorplan as NODE:map:0")
@@ -276,6 +270,6 @@ def register_sim(sub) -> None:
         metavar="R0,R1",
         help="robots that get the navigation stack (default: every robot with a laser)",
     )
-    p.add_argument("--require-timeout", type=_positive, default=30.0, help=argparse.SUPPRESS)
+    p.add_argument("--require-timeout", type=positive, default=30.0, help=argparse.SUPPRESS)
     add_transport_args(p)
     p.set_defaults(func=_sim)

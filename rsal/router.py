@@ -12,10 +12,9 @@ and who may only watch. This is Zenoh's own router (a session in ``router`` mode
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 
+from .cliutil import stop_on_signals
 from .transport import DEFAULT_ENDPOINT, TransportArgs, add_transport_args, open_session
 
 __all__ = ["register", "run_router"]
@@ -27,15 +26,7 @@ def run_router(args: argparse.Namespace) -> int:
         targs.mode = targs.mode or "router"
         if not targs.listen and not targs.connect:
             targs.listen = [DEFAULT_ENDPOINT]
-    stop = threading.Event()
-    got: list[str] = []
-
-    def on_signal(signum, frame) -> None:
-        got.append(signal.Signals(signum).name)
-        stop.set()
-
-    for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, on_signal)
+    stop, got = stop_on_signals()
     try:
         session = open_session(targs)
     except ValueError as e:

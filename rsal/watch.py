@@ -33,7 +33,6 @@ import functools
 import logging
 import math
 import os
-import signal
 import sys
 import threading
 import time
@@ -45,6 +44,7 @@ import numpy as np
 import zenoh
 
 from . import keys
+from .cliutil import stop_on_signals
 from .keys import DeviceAddr
 from .msgs import (
     BlobfinderData,
@@ -967,15 +967,7 @@ def run_watch(args: argparse.Namespace) -> int:
     if args.save and not os.path.isdir(os.path.dirname(os.path.abspath(args.save))):
         print(f"rsal watch: --save {args.save!r}: the directory does not exist", file=sys.stderr)
         return 1
-    stop = threading.Event()
-    got: list[str] = []
-
-    def on_signal(signum, frame) -> None:
-        got.append(signal.Signals(signum).name)
-        stop.set()
-
-    for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, on_signal)
+    stop, got = stop_on_signals()
     try:
         session = open_session(TransportArgs.from_namespace(args))
     except ValueError as e:
