@@ -24,7 +24,8 @@ setup() {
   if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$want" ]; then
     echo "[setup] installing rsal-fabric and its dependencies into $VENV/ (first run takes a minute)"
     "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --upgrade pip
-    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -e '.[test]'
+    # PYTHONWARNINGS: no setuptools notice boxes about editable installs in the set-up output
+    PYTHONWARNINGS=ignore "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -e '.[test]'
     echo "$want" > "$STAMP"
     echo "[setup] done"
   fi
