@@ -21,6 +21,7 @@ from agents.runtime import AgentHost
 from agents.services import Hello, Message, SendPosition
 from rsal.client import Fabric
 from rsal.keys import parse_device
+from rsal.msgs import RpcError
 from rsal.transport import TransportArgs
 from tests.conftest import MAPS, free_port, rsal_cmd, wait_until
 
@@ -155,6 +156,15 @@ def sim(procs):
         node = fabric.node("sim:simulation:0")
         wait_until(lambda: node.search(node="sim"), 60, f"the simulator on {ep}\n{p.output()}", interval=0.2)
         simdev = fabric.device(parse_device("sim:simulation:0"))
+
+        def answers() -> bool:  # the server's first seconds may go to compiling the planners' kernels
+            try:
+                simdev.rpc("models", timeout=2.0)
+                return True
+            except RpcError:
+                return False
+
+        wait_until(answers, 90, f"the simulation to answer rpcs\n{p.output()}", interval=0.5)
         yield {"host": host, "loop": lt, "sim": simdev, "proc": p}
     finally:
         if host is not None:
