@@ -11,6 +11,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -160,3 +161,26 @@ class FakeSession:
     def declare_token(self, key):
         self.tokens.append(str(key))
         return _Entity()
+
+
+class LoopThread:
+    """An asyncio loop on a daemon thread for tests that host agents in-process; ``run(coro)``
+    waits for the result (``timeout`` seconds, the instance's default unless given)."""
+
+    def __init__(self, timeout: float = 20.0):
+        import asyncio
+
+        self.default_timeout = timeout
+        self.loop = asyncio.new_event_loop()
+        self.t = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.t.start()
+
+    def run(self, coro, timeout: float | None = None):
+        import asyncio
+
+        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout or self.default_timeout)
+
+    def close(self) -> None:
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.t.join(5)
+        self.loop.close()

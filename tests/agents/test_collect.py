@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import threading
 import time
 
 import pytest
@@ -23,7 +22,7 @@ from rsal.client import Fabric
 from rsal.keys import parse_device
 from rsal.msgs import RpcError
 from rsal.transport import TransportArgs
-from tests.conftest import MAPS, free_port, rsal_cmd, wait_until
+from tests.conftest import MAPS, LoopThread, free_port, rsal_cmd, wait_until
 
 WORLD = MAPS / "collect.world"
 BLOBS = ("blob0", "blob1", "blob2")
@@ -124,19 +123,6 @@ def test_agents_reject_bad_arguments():
 
 
 # ============================================================================ with the simulator
-class _Loop:
-    def __init__(self):
-        self.loop = asyncio.new_event_loop()
-        self.t = threading.Thread(target=self.loop.run_forever, daemon=True)
-        self.t.start()
-
-    def run(self, coro, timeout: float = 120.0):
-        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
-
-    def close(self):
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self.t.join(5)
-        self.loop.close()
 
 
 @pytest.fixture
@@ -146,7 +132,7 @@ def sim(procs):
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
     p = procs(rsal_cmd("sim", str(WORLD), "--listen", ep, "--nav", "vfh", "--nav-robots", "c1,c2"))
-    lt = _Loop()
+    lt = LoopThread(120.0)
     host = None
     fabric = None
     try:

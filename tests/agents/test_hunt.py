@@ -26,24 +26,7 @@ from agents.runtime import Agent, AgentHost
 from agents.services import NewGoal, Outcome
 from rsal.robot import RobotError
 from rsal.transport import TransportArgs, open_session
-from tests.conftest import MAPS, ROOT, free_port, rsal_cmd, wait_until
-
-
-class LoopThread:
-    """An asyncio loop on a daemon thread; ``run(coro)`` waits for the result."""
-
-    def __init__(self):
-        self.loop = asyncio.new_event_loop()
-        self.t = threading.Thread(target=self.loop.run_forever, daemon=True)
-        self.t.start()
-
-    def run(self, coro, timeout: float = 90.0):
-        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
-
-    def close(self):
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self.t.join(5)
-        self.loop.close()
+from tests.conftest import MAPS, ROOT, LoopThread, free_port, rsal_cmd, wait_until
 
 
 class Observer(Agent):
@@ -78,7 +61,7 @@ def hunt(procs):
     def start(world: str, nav_robots: str):
         ep = f"tcp/127.0.0.1:{free_port()}"
         sim = procs(rsal_cmd("sim", str(MAPS / world), "--listen", ep, "--nav", "vfh", "--nav-robots", nav_robots))
-        lt = LoopThread()
+        lt = LoopThread(90.0)
         session = open_session(TransportArgs(connect=[ep]))
         host = AgentHost(session)
         lt.run(host.__aenter__())

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import threading
 
 import msgpack
 import pytest
@@ -18,24 +17,7 @@ from agents.runtime import Agent, AgentHost
 from agents.services import Hello, Message, NewGoal, SendPosition, decode_message, encode_message, match
 from rsal.msgs import MessageError
 from rsal.transport import TransportArgs, open_session
-from tests.conftest import free_port, wait_until
-
-
-class LoopThread:
-    """An asyncio loop on a daemon thread; ``run(coro)`` waits for the result."""
-
-    def __init__(self):
-        self.loop = asyncio.new_event_loop()
-        self.t = threading.Thread(target=self.loop.run_forever, daemon=True)
-        self.t.start()
-
-    def run(self, coro, timeout: float = 20.0):
-        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
-
-    def close(self):
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self.t.join(5)
-        self.loop.close()
+from tests.conftest import LoopThread, free_port, wait_until
 
 
 @pytest.fixture
