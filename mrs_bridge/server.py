@@ -116,7 +116,7 @@ class DeviceServer:
         self._warned: dict[str, tuple[float, int]] = {}
         self.stats = {"cmd": 0, "rpc": 0, "rejected": 0, "published": 0}
         self._failed = 0  # drivers that failed (the loop checks whether any still works)
-        self._pub_cache: dict[int, tuple[DeviceAddr, _Device]] = {}  # id(addr) -> (addr, device)
+        self._pub_cache: dict[int, tuple[DeviceAddr, Any]] = {}  # id(addr) -> (addr, publisher's put)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -468,21 +468,16 @@ class DeviceServer:
     # ------------------------------------------------------------------ outbound
     def publish(self, addr: DeviceAddr, msg) -> None:
         # Drivers publish with the same address objects every time (their cfg.provides): look the
-        # device up by identity first, which skips hashing and comparing the dataclass. The cache
-        # holds the address object, so its id cannot be reused while the entry lives; it is
-        # emptied whenever a device is declared or withdrawn.
+        # device's ``put`` up by identity first, which skips hashing and comparing the dataclass.
+        # The cache holds the address object, so its id cannot be reused while the entry lives; it
+        # is emptied whenever a device is declared or withdrawn (which undeclares its publisher).
         hit = self._pub_cache.get(id(addr))
-        if hit is not None and hit[0] is addr:
-            dev = hit[1]
-        else:
+        if hit is None or hit[0] is not addr:
             dev = self.devices.get(addr.without_key() if addr.key else addr)
-            if dev is None:
+            if dev is None or dev.pub is None:
                 return
-            self._pub_cache[id(addr)] = (addr, dev)
-        pub = dev.pub
-        if pub is None:
-            return
-        pub.put(encode(msg))
+            hit = self._pub_cache[id(addr)] = (addr, dev.pub.put)
+        hit[1](encode(msg))
         self.stats["published"] += 1
 
     def send(self, addr: DeviceAddr, msg) -> None:

@@ -24,7 +24,7 @@ import numpy as np
 from . import keys, msgs
 from .data import BlobfinderBlob, Position
 from .keys import DeviceAddr
-from .msgs import MessageError
+from .msgs import MessageError, decode_map
 
 if TYPE_CHECKING:
     from .client import Fabric
@@ -46,6 +46,7 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+_monotonic = time.monotonic
 
 
 class Device:
@@ -67,6 +68,13 @@ class Device:
         self._cond = threading.Condition()
         self._waiting = 0  # threads in wait_for_data: only then does new data need a notify
         self._bad = 0
+        # The data path runs once per sample: bind what it calls once, here.
+        dt = self.data_type
+        if type(self)._decode is not Device._decode:  # a subclass decodes the map its own way
+            self._from_bytes = lambda data: self._decode(decode_map(data))
+        else:
+            self._from_bytes = dt.from_bytes if dt is not None else decode_map
+        self._has_after_data = type(self)._after_data is not Device._after_data
         s = fabric.session
         self._sub = s.declare_subscriber(keys.data_key(addr), self._on_data)
         self._esub = s.declare_subscriber(keys.event_key(addr), self._on_event)
@@ -94,7 +102,7 @@ class Device:
 
     def _on_data(self, sample) -> None:
         try:
-            msg = self._decode(msgs.decode_map(sample.payload.to_bytes()))
+            msg = self._from_bytes(sample.payload.to_bytes())
         except MessageError as e:
             self._bad += 1
             if self._bad in (1, 10, 100) or self._bad % 1000 == 0:
@@ -103,19 +111,22 @@ class Device:
         # One Zenoh thread per subscription delivers in order, so these plain writes need no lock;
         # waiters count themselves in under the condition before they check, so none is missed.
         self.latest = msg
-        self.received_at = time.monotonic()
+        self.received_at = _monotonic()
         self.count += 1
         if self._waiting:
             with self._cond:
                 self._cond.notify_all()
-        self._after_data(msg)
+        if self._has_after_data:
+            self._after_data(msg)
         for fn in self._inline_listeners:
             try:
                 fn(msg)
             except Exception:
                 log.exception("%s: inline listener %r failed", self.addr, getattr(fn, "__qualname__", fn))
-        for fn in self._listeners:
-            self.fabric.dispatcher.submit(fn, msg)
+        if self._listeners:
+            submit = self.fabric.dispatcher.submit
+            for fn in self._listeners:
+                submit(fn, msg)
 
     def _after_data(self, msg: Any) -> None:
         """Hook for subclasses (runs on a Zenoh thread: keep it short)."""

@@ -354,3 +354,83 @@ def test_a_transport_error_reply_is_not_a_device_error(raw, code):
         parse_reply(raw, is_error=True, key="rsal/r0/planner/0/rpc/set_goal")
     assert ei.value.code == code
     assert raw.decode() in ei.value.message
+
+
+# ---------------------------------------------------------------------------- RangerData wire fast path
+def _scan(n: int = 682, **kw) -> RangerData:
+    rng = np.random.default_rng(n)
+    f = dict(t=12.5, angle_min=-2.0944, angle_step=0.00614, range_min=0.02, range_max=5.6) | kw
+    return RangerData(ranges=rng.uniform(0.02, 5.6, n).astype("<f4"), **f)
+
+
+@pytest.mark.parametrize("n", [0, 1, 16, 63, 64, 181, 682, 1081, 16383, 16384, 70000])
+def test_ranger_fast_encoding_is_byte_for_byte_msgpack(n):
+    scan = _scan(n)
+    assert scan.to_msgpack() == msgpack.packb(scan.to_dict(), use_bin_type=True)
+    assert encode(scan) == scan.to_msgpack()
+
+
+@pytest.mark.parametrize("n", [0, 1, 16, 64, 682, 16383, 16384, 70000])
+def test_ranger_fast_decoding_equals_the_generic_decoding(n):
+    scan = _scan(n)
+    data = msgpack.packb(scan.to_dict(), use_bin_type=True)
+    fast, generic = RangerData.from_bytes(data), RangerData.from_dict(msgs.decode_map(data))
+    for name in ("t", "angle_min", "angle_step", "range_min", "range_max"):
+        assert getattr(fast, name) == getattr(generic, name) == getattr(scan, name)
+    assert fast.ranges.dtype == np.dtype("<f4")
+    np.testing.assert_array_equal(fast.ranges, scan.ranges)
+    np.testing.assert_array_equal(decode(RangerData, data).ranges, scan.ranges)
+
+
+def test_ranger_encoding_of_non_float_fields_and_other_dtypes_takes_the_generic_path():
+    for scan in (
+        _scan(t=3),  # an int stamp stays an int on the wire, as msgpack packs it
+        _scan(angle_min=np.float64(-1.0)),
+        RangerData(1.0, np.ones(100), 0.0, 0.1, 0.0, 5.0),  # float64 ranges become float32
+        RangerData(1.0, np.ones((200, 2), dtype="<f4")[:, 0], 0.0, 0.1, 0.0, 5.0),  # a strided view
+    ):
+        assert scan.to_msgpack() == msgpack.packb(scan.to_dict(), use_bin_type=True)
+        back = RangerData.from_bytes(scan.to_msgpack())
+        np.testing.assert_array_equal(back.ranges, np.asarray(scan.ranges, dtype="<f4"))
+        assert back.t == scan.t
+
+
+def test_ranger_decoding_of_other_layouts_matches_the_generic_path():
+    """Another key order, float32 or integer fields, extra keys: the same message as the generic path."""
+    m = _scan(300).to_dict()
+    variants = [
+        dict(reversed(m.items())),
+        m | {"extra": 1},
+        m | {"t": 7},
+        {k: m[k] for k in ("t", "ranges")},  # optional fields left out
+    ]
+    f32 = msgpack.Packer(use_bin_type=True, use_single_float=True).pack(m)
+    for data in [msgpack.packb(v, use_bin_type=True) for v in variants] + [f32]:
+        fast, generic = RangerData.from_bytes(data), RangerData.from_dict(msgs.decode_map(data))
+        assert (fast.t, fast.angle_min, fast.range_max) == (generic.t, generic.angle_min, generic.range_max)
+        np.testing.assert_array_equal(fast.ranges, generic.ranges)
+
+
+@pytest.mark.parametrize(
+    "mutate, fragment",
+    [
+        (lambda d: d + b"\x00", "not msgpack"),  # trailing bytes after the map
+        (lambda d: d[:-1], "not msgpack"),  # cut short
+        (lambda d: d[:4] + msgpack.packb(math.nan)[1:] + d[12:], "'t'"),  # NaN stamp
+        (lambda d: d[:-9] + msgpack.packb(math.inf), "'range_max'"),  # inf field
+        (lambda d: d[:20] + (int.from_bytes(d[20:22], "big") - 2).to_bytes(2, "big") + d[22:-2], "not msgpack"),
+    ],
+)
+def test_ranger_fast_decoding_rejects_what_the_generic_path_rejects(mutate, fragment):
+    data = mutate(_scan(300).to_msgpack())
+    with pytest.raises(MessageError, match=fragment):
+        RangerData.from_bytes(data)
+    with pytest.raises(MessageError, match=fragment):
+        RangerData.from_dict(msgs.decode_map(data))
+
+
+def test_ranger_fast_decoding_reads_the_ranges_in_place_read_only():
+    data = _scan(300).to_msgpack()
+    back = RangerData.from_bytes(data)
+    assert back.ranges.base is data  # a view into the payload: the fast path, no copy
+    assert not back.ranges.flags.writeable
