@@ -392,17 +392,11 @@ class RangerData(_Msg):
 
     @classmethod
     def from_bytes(cls, data: bytes | bytearray | memoryview | None) -> RangerData:
-        if type(data) is bytes and len(data) >= _RD_MIN and data[19] == 0xC5 and data[:4] == _RD_T:
-            _, t, key, n = _RD_HEAD16.unpack_from(data)
-            if key == _RD_R16 and len(data) == _RD_MIN + 1 + n and not n & 3:
+        if type(data) is bytes and len(data) >= _RD_MIN:
+            head, t, key, n = _RD_HEAD16.unpack_from(data)
+            if head == _RD_T and key == _RD_R16 and len(data) == _RD_MIN + 1 + n and not n & 3:
                 k0, a0, k1, da, k2, lo, k3, hi = _RD_TAIL.unpack_from(data, 22 + n)
-                if (
-                    k0 == _RD_K0
-                    and k1 == _RD_K1
-                    and k2 == _RD_K2
-                    and k3 == _RD_K3
-                    and (t - t) + (a0 - a0) + (da - da) + (lo - lo) + (hi - hi) == 0.0
-                ):
+                if (k0, k1, k2, k3) == _RD_KEYS and (t - t) + (a0 - a0) + (da - da) + (lo - lo) + (hi - hi) == 0.0:
                     return cls(t, _frombuffer(data, _F32, n >> 2, 22), a0, da, lo, hi)
         return cls.from_dict(decode_map(data))
 
@@ -410,16 +404,17 @@ class RangerData(_Msg):
 # RangerData's wire layout: fixmap(6) "t" float64, "ranges" bin8/bin16 <n bytes>, then the four
 # float64 fields. Only bin16 payloads (256 B to 64 kB of ranges: 64 to 16383 beams) are read by
 # the fast path; shorter and longer scans are still written by it where they fit, and read generically.
-_RD_T = b"\x86\xa1t\xcb"
+_RD_T = 0x86A174CB  # fixmap(6), fixstr "t", float64 marker
 _RD_R8, _RD_R16 = b"\xa6ranges\xc4", b"\xa6ranges\xc5"
-_RD_HEAD8 = struct.Struct(">4sd8sB")
-_RD_HEAD16 = struct.Struct(">4sd8sH")
+_RD_HEAD8 = struct.Struct(">Id8sB")
+_RD_HEAD16 = struct.Struct(">Id8sH")
 _RD_K0, _RD_K1, _RD_K2, _RD_K3 = (
     b"\xa9angle_min\xcb",
     b"\xaaangle_step\xcb",
     b"\xa9range_min\xcb",
     b"\xa9range_max\xcb",
 )
+_RD_KEYS = (_RD_K0, _RD_K1, _RD_K2, _RD_K3)
 _RD_TAIL = struct.Struct(">11sd12sd11sd11sd")
 _RD_MIN = _RD_HEAD8.size + _RD_TAIL.size  # 98: the bin8 header is one byte shorter than bin16's
 
