@@ -18,7 +18,9 @@ runs every robot's behaviour cycle in turn (in slices, serving messages in betwe
 thread per robot, and one Zenoh subscriber on ``send_position`` whose messages are decoded once, put
 once on the host's blackboard (all its agents receive the same messages) and handed to each agent
 on the loop for its own accounting (SPADE's local delivery short-cut). ``shared=False`` gives an
-agent its own subscription and blackboard instead.
+agent its own subscription and blackboard instead. The shared Fabric runs its device callbacks on
+Zenoh's network threads (``direct_callbacks``), not on a Python thread per subscription: with 200
+robots that is 800 fewer threads contending for the GIL with the control loop.
 
 :class:`SwarmMonitor` judges a run from the simulation's ground truth: every ``sample_every``
 seconds it asks the ``simulation`` device for every robot's true pose, checks that no two robots
@@ -333,7 +335,7 @@ class _Hub:
     def __init__(self, host: AgentHost, period: float):
         self.host = host
         self.period = period
-        self.fabric = Fabric(host.session, own_session=False)
+        self.fabric = Fabric(host.session, own_session=False, direct_callbacks=True)  # no thread per device
         self.node = self.fabric.node("*:position2d:0", "*:sonar:0", "*:laser:0", "*:simulation:0")
         self.agents: dict[str, SwarmAgent] = {}
         self.robots: dict[str, Pioneer] = {}

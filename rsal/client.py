@@ -103,9 +103,16 @@ class Dispatcher:
 class Fabric:
     """A connection to the RSAL fabric. Use as a context manager or call :meth:`close`."""
 
-    def __init__(self, session: zenoh.Session, *, own_session: bool = True):
+    def __init__(self, session: zenoh.Session, *, own_session: bool = True, direct_callbacks: bool = False):
+        """``direct_callbacks``: run the device proxies' subscription callbacks on Zenoh's network
+        threads instead of a Python thread per subscription (Zenoh's default). For a process with
+        many devices -- a swarm host with hundreds of robots -- that is hundreds fewer threads waking
+        for the GIL: at 200 robots the host's control cycles overran 41 % of the time with a thread
+        per subscription and 2.5 % without (docs/benchmarks.md). A single very high-rate stream is
+        faster with its own thread (the network thread then only receives), hence the default."""
         self.session = session
         self._own = own_session
+        self.direct_callbacks = direct_callbacks
         self.dispatcher = Dispatcher()
         self._proxies: dict[DeviceAddr, Any] = {}
         self._lock = threading.Lock()
@@ -134,6 +141,11 @@ class Fabric:
                 self.session.close()
             except Exception:
                 pass
+
+    def callback(self, fn: Callable[[Any], None]):
+        """The handler to subscribe ``fn`` with: ``fn`` itself (Zenoh runs it on a thread of its
+        own), or run directly on Zenoh's network thread with ``direct_callbacks``."""
+        return zenoh.handlers.Callback(fn, indirect=False) if self.direct_callbacks else fn
 
     # ------------------------------------------------------------------ devices
     def device(self, addr: DeviceAddr | str, cls: type | None = None):

@@ -76,8 +76,8 @@ class Device:
             self._from_bytes = dt.from_bytes if dt is not None else decode_map
         self._has_after_data = type(self)._after_data is not Device._after_data
         s = fabric.session
-        self._sub = s.declare_subscriber(keys.data_key(addr), self._on_data)
-        self._esub = s.declare_subscriber(keys.event_key(addr), self._on_event)
+        self._sub = s.declare_subscriber(keys.data_key(addr), fabric.callback(self._on_data))
+        self._esub = s.declare_subscriber(keys.event_key(addr), fabric.callback(self._on_event))
         self._describe: msgs.Describe | None = None
 
     # ------------------------------------------------------------------ identity

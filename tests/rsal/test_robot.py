@@ -55,6 +55,9 @@ class FakeFabric:
         self.sent: list[tuple[DeviceAddr, object]] = []
         self.rpcs: list[tuple[DeviceAddr, str, dict]] = []
 
+    def callback(self, fn):  # as Fabric.callback without direct_callbacks
+        return fn
+
     def device(self, cls, text: str, geometry: dict | None = None):
         a = parse_device(text)
         p = cls(self, a)
