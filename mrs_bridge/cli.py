@@ -1,5 +1,6 @@
-"""``rsal serve CONFIG`` and ``rsal sim WORLD``: run a device server (registered as ``rsal``
-sub-commands through the ``rsal.commands`` entry points).
+"""``rsal serve CONFIG`` and ``rsal sim WORLD``: run a device server; ``rsal warmup``: compile the
+servers' kernels ahead of time (registered as ``rsal`` sub-commands through the ``rsal.commands``
+entry points).
 
 ``rsal serve`` runs the drivers of a TOML configuration (see :mod:`mrs_bridge.config`).
 ``rsal sim`` is the shorthand of DESIGN "Processes": one server with the simulator in-process,
@@ -25,7 +26,7 @@ from rsal.transport import TransportArgs, add_transport_args, open_session
 from .config import ConfigError, DriverConfig, ServerConfig, load_config
 from .server import DeviceServer, ServerError
 
-__all__ = ["register_serve", "register_sim", "sim_config", "run_server"]
+__all__ = ["register_serve", "register_sim", "register_warmup", "sim_config", "run_server"]
 
 log = logging.getLogger("mrs_bridge")
 
@@ -273,3 +274,23 @@ def register_sim(sub) -> None:
     p.add_argument("--require-timeout", type=positive, default=30.0, help=argparse.SUPPRESS)
     add_transport_args(p)
     p.set_defaults(func=_sim)
+
+
+def _warmup(args: argparse.Namespace) -> int:
+    from . import kernels
+
+    t0 = time.perf_counter()
+    for group, (_, what) in kernels.GROUPS.items():
+        print(f"[warmup] {what}: compiling (the first time only; up to a minute) or loading ...", flush=True)
+        dt = kernels.prepare(group, label="warmup", notice_after=None)
+        print(f"[warmup] {what}: ready in {dt:.1f} s", flush=True)
+    print(f"[warmup] every kernel compiled or loaded from the cache in {time.perf_counter() - t0:.1f} s", flush=True)
+    return 0
+
+
+def register_warmup(sub) -> None:
+    p = sub.add_parser(
+        "warmup",
+        help="compile the simulator's and navigation's kernels into numba's cache (the set-up runs it)",
+    )
+    p.set_defaults(func=_warmup)

@@ -4,6 +4,9 @@ A driver *provides* devices (addresses like ``r0:position2d:0``) and may *requir
 or on another server. The server owns all Zenoh entities; a driver only implements:
 
 - ``setup()`` once its required devices are alive (inputs arrive through ``on_input``);
+  compiled kernels are prepared here (:mod:`mrs_bridge.kernels`), before anything is announced;
+- ``ready()`` whether it can serve yet: its devices' tokens are declared after ``setup()``, the
+  first ``update()`` and once ``ready()`` is true (a map still to arrive by rpc: not yet);
 - ``update(now)`` at ``rate`` Hz on the server's single scheduler (publish with ``publish``);
 - ``on_cmd(addr, msg)`` for a decoded ``cmd`` map; raise :class:`~rsal.msgs.MessageError` (or
   :class:`OutOfRange`) to reject it: the server logs a rate-limited warning and nothing changes;
@@ -83,6 +86,11 @@ class Driver:
 
     def update(self, now: float) -> None:
         """Called at ``rate`` Hz (``rate`` 0: never; the driver publishes on its own events)."""
+
+    def ready(self) -> bool:
+        """Whether the devices can serve (e.g. a map that arrives by rpc is in): the server declares
+        their tokens after ``setup()``, the first ``update()`` and once this is true."""
+        return True
 
     def on_input(self, addr: DeviceAddr, channel: str, msg: dict) -> None:
         """Data (``channel == "data"``) or events from a required device."""

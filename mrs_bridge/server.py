@@ -7,6 +7,11 @@ declares, per the key space of :mod:`rsal.keys`:
 - a ``data`` publisher and an ``event`` publisher,
 - a ``cmd`` subscriber and an ``rpc/*`` queryable (``rpc/describe`` on every device).
 
+Ready means ready: a device's token is declared only once its driver is set up (compiled kernels
+included, see :mod:`simulator.warmup`) and has run its first ``update()`` (drivers without a rate
+publish on their own events: after the first scheduler pass), so a client that sees the token can
+query, command and receive data at once, on the first run of a fresh checkout as on every other.
+
 Concurrency: Zenoh callbacks only put raw items on one in-memory queue; a single scheduler loop
 (:meth:`DeviceServer.run`) takes them off, decodes and validates them, hands them to drivers and
 replies, and runs every driver's ``update()`` at its own rate. A driver that raises is logged, its
@@ -88,6 +93,7 @@ class _Slot:
     deadline: float = math.inf
     next_due: float = 0.0
     subs: list[Any] = field(default_factory=list)  # liveliness and input subscribers
+    announced: bool = False  # the devices' tokens are declared (first update done)
 
     @property
     def name(self) -> str:
@@ -236,7 +242,11 @@ class DeviceServer:
                 )
                 self._fail(slot, None)
                 continue
-            if slot.state != "running" or slot.driver.rate <= 0:
+            if slot.state != "running":
+                continue
+            if slot.driver.rate <= 0:  # publishes on its own events: ready after one scheduler pass
+                if not slot.announced and self._call(slot, slot.driver.ready):
+                    self._announce(slot)
                 continue
             if now < slot.next_due:
                 continue
@@ -245,6 +255,8 @@ class DeviceServer:
             if slot.next_due < now - period:  # fell behind: do not burst
                 slot.next_due = now + period
             self._call(slot, slot.driver.update, now)
+            if not slot.announced and slot.state == "running" and self._call(slot, slot.driver.ready):
+                self._announce(slot)
 
     def _call(self, slot: _Slot, fn, *args, fail: bool = True):
         try:
@@ -278,6 +290,9 @@ class DeviceServer:
         for hardware that stops answering and comes back (clients see the devices lost, then found).
         Publishers, commands and rpcs stay declared. Scheduler thread only."""
         driver.online = bool(online)
+        slot = next((s for s in self.slots if s.driver is driver), None)
+        if slot is not None and not slot.announced:
+            return  # not ready yet: the tokens come with the first update (_announce)
         for a in driver.cfg.provides:
             dev = self.devices.get(a.without_key())
             if dev is None:
@@ -347,10 +362,18 @@ class DeviceServer:
         dev.rpc_q = s.declare_queryable(
             f"{keys.PREFIX}/{addr.path}/rpc/*", lambda q, a=addr: self.inbox.put(("rpc", a, q))
         )
-        if slot.driver.online:  # hardware not answering yet: its token comes with set_online(True)
-            dev.token = s.liveliness().declare_token(keys.device_key(addr))
         self.devices[addr] = dev
         self._pub_cache.clear()
+
+    def _announce(self, slot: _Slot) -> None:
+        """Declare the liveliness tokens of ``slot``'s devices: it is set up and has run once."""
+        slot.announced = True
+        if not slot.driver.online:  # hardware not answering yet: its tokens come with set_online(True)
+            return
+        for a in slot.driver.cfg.provides:
+            dev = self.devices.get(a.without_key())
+            if dev is not None and dev.token is None:
+                dev.token = self.session.liveliness().declare_token(keys.device_key(dev.addr))
 
     # ------------------------------------------------------------------ inbound
     def _handle(self, item: tuple) -> None:

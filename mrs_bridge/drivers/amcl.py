@@ -131,8 +131,14 @@ class AmclDriver(Driver):
 
     # ------------------------------------------------------------------ set-up
     def setup(self) -> None:
+        from ..kernels import prepare
+
+        prepare("nav", label="nav")  # the filter's kernels, before its devices are announced
         self.request(self.map_addr, "get", timeout=30.0)
         self.request(self.range_addr, "describe")
+
+    def ready(self) -> bool:
+        return self.filter is not None and self.beams is not None
 
     def on_reply(self, addr, op, result, error) -> None:
         if error is not None:

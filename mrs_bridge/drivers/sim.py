@@ -69,6 +69,9 @@ class SimulationDriver(Driver):
                 raise ConfigError(f"{cfg.where}: {e}") from None
             server.shared[WORLD_KEY] = world
         self.world = world
+        from ..kernels import prepare
+
+        prepare("simulator", label="sim")  # before any device of this server is announced
         sp = cfg.param("speedup", world.spec.speedup)
         try:
             sp = float(sp)

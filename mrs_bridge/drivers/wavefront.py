@@ -108,9 +108,15 @@ class WavefrontDriver(Driver):
         self._message = ""
 
     def setup(self) -> None:
+        from ..kernels import prepare
+
+        prepare("nav", label="nav")  # the search's kernels, before the planner is announced
         self.request(self.map_addr, "get", timeout=30.0)
         if self.robot_radius is None:
             self.request(self.out_addr, "describe")
+
+    def ready(self) -> bool:
+        return self.exec is not None  # the map is in and the configuration space built
 
     def on_reply(self, addr, op, result, error) -> None:
         if error is not None:

@@ -163,6 +163,56 @@ def test_running_drivers_keep_publishing(servers, port, fabric_factory):
     assert later >= first + 5
 
 
+class SlowStart(Counter):
+    """A Counter whose first update() takes ``server.shared["first_step"]`` seconds (a kernel being
+    compiled) and which is not ready until ``server.shared["ready"]`` is set (a map still to come)."""
+
+    driver_name = "slowstart"
+
+    def update(self, now):
+        if self.n == 0:
+            self.server.shared["first_began"] = time.monotonic()
+            time.sleep(self.server.shared.get("first_step", 0.0))  # the slow step itself, not a wait
+            self.server.shared["first_done"] = time.monotonic()
+        super().update(now)
+
+    def ready(self):
+        return self.server.shared.get("ready", True)
+
+
+def _token_seen(port, fabric_factory, addr: str) -> float:
+    fab = fabric_factory(port)
+    node = fab.node("**")
+    node.wait_for(addr, 1, timeout=20)
+    return time.monotonic()
+
+
+def test_a_token_only_after_the_first_slow_update(servers, port, fabric_factory):
+    srv = servers('[[driver]]\nname = "slowstart"\nprovides = ["r0:dio:0"]\n', port=port)
+    srv.server.registry = {**DRIVERS, "slowstart": SlowStart}
+    srv.server.shared["first_step"] = 1.5
+    srv.start()
+    seen = _token_seen(port, fabric_factory, "r0:dio:0")
+    assert seen >= srv.server.shared["first_done"], "token declared before the first update finished"
+    fab = fabric_factory(port)
+    t0 = time.monotonic()
+    assert fab.device("r0:dio:0").describe(timeout=2).driver == "slowstart"  # answers at once
+    assert time.monotonic() - t0 < 1.0
+
+
+def test_a_token_only_once_the_driver_is_ready(servers, port, fabric_factory):
+    srv = servers('[[driver]]\nname = "slowstart"\nprovides = ["r0:dio:0"]\n', port=port)
+    srv.server.registry = {**DRIVERS, "slowstart": SlowStart}
+    srv.server.shared["ready"] = False
+    srv.start()
+    fab = fabric_factory(port)
+    node = fab.node("**")
+    wait_until(lambda: srv.driver("slowstart").n >= 10, 10, "the driver updating")
+    assert not node.is_alive(parse_device("r0:dio:0"))
+    srv.server.shared["ready"] = True
+    node.wait_for("r0:dio:0", 1, timeout=10)
+
+
 # ---------------------------------------------------------------------------- rpc
 def test_rpc_replies_and_typed_errors(servers, port, fabric_factory):
     srv = servers(TWO_COUNTERS, port=port).start()
