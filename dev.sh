@@ -1,15 +1,21 @@
 #!/usr/bin/env bash
 # RSAL fabric developer entry point.
 #   ./dev.sh demo [ARGS]   set up .venv if needed, then run the embedded default (rsal demo)
-#   ./dev.sh test [ARGS]   set up .venv if needed, then run the whole test suite (pytest)
-#   ./dev.sh setup         only set up (or refresh) .venv
+#   ./dev.sh test [ARGS]   set up .venv and the test tools if needed, then run the whole test suite (pytest)
+#   ./dev.sh setup         only set up (or refresh) .venv and the compiled kernels
 # The virtual environment lives in .venv/ at the repository root; it is (re)installed whenever
-# pyproject.toml changes. Needs Python 3.11+ and pip; nothing is fetched at run time.
+# pyproject.toml changes. The simulator's and navigation's kernels are compiled into numba's cache
+# (rsal warmup) whenever they may be missing, so the first run starts as fast as every later one.
+# The test command also installs what the browser test needs from the system (Debian's chromium)
+# when it can (root and apt-get). Needs Python 3.11+ and pip; nothing is fetched at run time.
 set -euo pipefail
 cd "$(dirname "$0")"
 PY=${PYTHON:-python3}
 VENV=.venv
 STAMP=$VENV/.rsal-installed
+KSTAMP=$VENV/.rsal-kernels
+KERNEL_SOURCES="simulator/raycast.py simulator/warmup.py mrs_bridge/nav/amcl.py mrs_bridge/nav/wavefront.py mrs_bridge/nav/warmup.py"
+CHROMIUM=/usr/bin/chromium
 
 setup() {
   if ! "$PY" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)' 2>/dev/null; then
@@ -27,8 +33,35 @@ setup() {
     # PYTHONWARNINGS: no setuptools notice boxes about editable installs in the set-up output
     PYTHONWARNINGS=ignore "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -e '.[test]'
     echo "$want" > "$STAMP"
+    rm -f "$KSTAMP"
     echo "[setup] done"
   fi
+  # numba keys its cache on the kernels' source files (path and modification time) and keeps it in
+  # __pycache__ beside them, or under NUMBA_CACHE_DIR: compile again whenever either changed.
+  # shellcheck disable=SC2086
+  kwant="${NUMBA_CACHE_DIR:-__pycache__} $(stat -c %Y $KERNEL_SOURCES | tr '\n' ' ')"
+  if [ ! -f "$KSTAMP" ] || [ "$(cat "$KSTAMP")" != "$kwant" ]; then
+    echo "[setup] compiling the simulator's and navigation's kernels (first run only, up to a minute)"
+    "$VENV/bin/rsal" warmup
+    echo "$kwant" > "$KSTAMP"
+  fi
+}
+
+test_tools() {
+  # The browser test drives Debian's chromium (no browser download); install it once when we can.
+  [ -x "$CHROMIUM" ] && return 0
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "[setup] installing Debian's chromium for the browser test (once; a few minutes)"
+    export DEBIAN_FRONTEND=noninteractive
+    if ! apt-get install -y -qq chromium >/dev/null 2>&1; then
+      apt-get update -qq >/dev/null 2>&1 || true
+      apt-get install -y -qq chromium >/dev/null 2>&1 || echo "[setup] could not install chromium: the browser test will be skipped"
+    fi
+    [ -x "$CHROMIUM" ] && echo "[setup] chromium installed: $("$CHROMIUM" --version 2>/dev/null || echo "$CHROMIUM")"
+  else
+    echo "[setup] $CHROMIUM is missing (install it with: apt-get install chromium): the browser test will be skipped"
+  fi
+  return 0
 }
 
 cmd=${1:-demo}
@@ -36,6 +69,6 @@ cmd=${1:-demo}
 case "$cmd" in
   setup) setup ;;
   demo) setup; exec "$VENV/bin/rsal" demo "$@" ;;
-  test) setup; exec "$VENV/bin/python" -m pytest "$@" ;;
+  test) setup; test_tools; exec "$VENV/bin/python" -m pytest "$@" ;;
   *) echo "dev.sh: unknown command '$cmd' (use: demo, test or setup)" >&2; exit 2 ;;
 esac
