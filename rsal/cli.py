@@ -22,7 +22,7 @@ import sys
 import time
 from importlib.metadata import entry_points
 
-from .errors import DEBUG_ENV, OneLineFormatter, debug_enabled, install_thread_hook, run_guarded
+from .errors import DEBUG_ENV, OneLineFormatter, debug_enabled, describe, install_thread_hook, run_guarded
 from .transport import TransportArgs, add_transport_args
 
 __all__ = ["main", "setup_logging"]
@@ -53,7 +53,7 @@ def setup_logging(verbosity: int = 0) -> None:
 
 def _cmd_ls(args: argparse.Namespace) -> int:
     from .client import Fabric
-    from .msgs import Describe
+    from .msgs import Describe, RpcError
 
     with Fabric.connect(TransportArgs.from_namespace(args)) as fab:
         node = fab.node(args.template)
@@ -79,7 +79,7 @@ def _cmd_ls(args: argparse.Namespace) -> int:
             try:
                 info[a] = Describe.from_dict(fab.rpc(a, "describe", timeout=args.timeout))
             except Exception as e:  # one silent device must not hide the others
-                info[a] = str(e)
+                info[a] = describe(e) if not isinstance(e, RpcError) else f"{e.code}: {e.message}"
         rows = [("NODE", "INTERFACE", "INDEX", "DRIVER", "RATE")]
         for a in devs:
             d = info[a]
@@ -90,6 +90,13 @@ def _cmd_ls(args: argparse.Namespace) -> int:
         widths = [max(len(r[i]) for r in rows) for i in range(5)]
         for r in rows:
             print("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
+        silent = [a for a in devs if not isinstance(info[a], Describe)]
+        if silent:
+            print(
+                f"rsal ls: {len(silent)} device(s) did not answer 'describe' within {args.timeout:g} s (shown with ?), "
+                f"e.g. {silent[0]}: {info[silent[0]]}",
+                file=sys.stderr,
+            )
     return 0
 
 
@@ -150,7 +157,7 @@ def _cmd_goto(args: argparse.Namespace) -> int:
         planner = fab.device(addr)
         goal = Position(args.x, args.y, math.radians(args.yaw))
         while True:
-            fut = planner.set_goal(goal, timeout=10.0)
+            fut = planner.set_goal(goal, timeout=min(10.0, args.wait))
             err = fut.exception() if fut.done() else None
             # A planner that has just started answers "unavailable" until its map and a localized
             # pose are in: ask again until --wait runs out.
@@ -158,7 +165,7 @@ def _cmd_goto(args: argparse.Namespace) -> int:
                 break
             time.sleep(0.2)
         if err is not None:
-            print(f"rsal goto: {addr}: {err}", file=sys.stderr)
+            print(f"rsal goto: {addr}: {describe(err)}", file=sys.stderr)
             return 1
         print(f"[goto] {addr}: goal ({args.x:g}, {args.y:g}, {args.yaw:g} deg), {planner.waypoint_count} waypoints")
         t0 = time.monotonic()
