@@ -146,11 +146,9 @@ def _status(agent) -> str:
 
 
 def _error_text(e: BaseException) -> str:
-    from rsal.robot import RobotError
+    from rsal.errors import describe
 
-    if isinstance(e, (TimeoutError, RobotError, InterruptedError, ValueError)):
-        return str(e)
-    return f"{type(e).__name__}: {e}"
+    return describe(e)
 
 
 async def serve_agents(
@@ -335,4 +333,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from rsal.errors import run_guarded
+
+    sys.exit(run_guarded("hostproc", main))

@@ -563,4 +563,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from rsal.errors import run_guarded
+
+    sys.exit(run_guarded("rsal run", main))

@@ -6,35 +6,54 @@ layers add theirs through the ``rsal.commands`` entry-point group (``serve`` and
 it. Each entry point is a function ``register(subparsers)`` that adds a sub-command whose
 ``func(args) -> int`` runs it.
 
-User errors (bad files, bad flags, nothing to talk to) print one line on stderr and exit 1;
-Ctrl-C exits 130 after a clean stop.
+Every command runs inside one safety net (:func:`rsal.errors.run_guarded`): a failure -- a bad
+file or flag, nothing to talk to, a device that does not answer, a port in use, or a bug -- prints
+one line on stderr naming what failed and what to do, and exits 1; Ctrl-C exits 130 after a clean
+stop. ``-v`` (before or after the command) or ``RSAL_DEBUG=1`` adds the traceback, also in the
+processes the command starts.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import time
 from importlib.metadata import entry_points
 
+from .errors import DEBUG_ENV, OneLineFormatter, debug_enabled, describe, install_thread_hook, run_guarded
 from .transport import TransportArgs, add_transport_args
 
 __all__ = ["main", "setup_logging"]
 
 
 def setup_logging(verbosity: int = 0) -> None:
-    """INFO by default, DEBUG with ``-v``; one line per record on stderr."""
-    logging.basicConfig(
-        level=logging.DEBUG if verbosity > 0 else logging.INFO,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        datefmt="%H:%M:%S",
-    )
+    """INFO by default, DEBUG with ``-v``; one line per record on stderr (a logged exception's
+    traceback only in debug mode, see :func:`rsal.errors.debug_enabled`).
+
+    Zenoh's own (Rust) log stays silent by default, so that a refused connection or a retry does
+    not add lines to a command's output; ``-v`` turns it on at warning level, and ``RUST_LOG``
+    chooses the level explicitly (e.g. ``RUST_LOG=zenoh=debug``).
+    """
+    debug = debug_enabled(verbosity)
+    handler = logging.StreamHandler()
+    handler.setFormatter(OneLineFormatter("%(asctime)s %(levelname)s %(name)s: %(message)s", "%H:%M:%S", debug=debug))
+    logging.basicConfig(level=logging.DEBUG if verbosity > 0 else logging.INFO, handlers=[handler])
+    try:
+        import zenoh
+
+        if verbosity > 0:
+            zenoh.init_log_from_env_or("warn")
+        elif os.environ.get("RUST_LOG"):
+            zenoh.try_init_log_from_env()
+    except Exception:  # the log is already set up, or this zenoh has no such call: keep the default
+        pass
 
 
 def _cmd_ls(args: argparse.Namespace) -> int:
     from .client import Fabric
-    from .msgs import Describe
+    from .msgs import Describe, RpcError
 
     with Fabric.connect(TransportArgs.from_namespace(args)) as fab:
         node = fab.node(args.template)
@@ -60,7 +79,7 @@ def _cmd_ls(args: argparse.Namespace) -> int:
             try:
                 info[a] = Describe.from_dict(fab.rpc(a, "describe", timeout=args.timeout))
             except Exception as e:  # one silent device must not hide the others
-                info[a] = str(e)
+                info[a] = describe(e) if not isinstance(e, RpcError) else f"{e.code}: {e.message}"
         rows = [("NODE", "INTERFACE", "INDEX", "DRIVER", "RATE")]
         for a in devs:
             d = info[a]
@@ -71,6 +90,13 @@ def _cmd_ls(args: argparse.Namespace) -> int:
         widths = [max(len(r[i]) for r in rows) for i in range(5)]
         for r in rows:
             print("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
+        silent = [a for a in devs if not isinstance(info[a], Describe)]
+        if silent:
+            print(
+                f"rsal ls: {len(silent)} device(s) did not answer 'describe' within {args.timeout:g} s (shown with ?), "
+                f"e.g. {silent[0]}: {info[silent[0]]}",
+                file=sys.stderr,
+            )
     return 0
 
 
@@ -131,7 +157,7 @@ def _cmd_goto(args: argparse.Namespace) -> int:
         planner = fab.device(addr)
         goal = Position(args.x, args.y, math.radians(args.yaw))
         while True:
-            fut = planner.set_goal(goal, timeout=10.0)
+            fut = planner.set_goal(goal, timeout=min(10.0, args.wait))
             err = fut.exception() if fut.done() else None
             # A planner that has just started answers "unavailable" until its map and a localized
             # pose are in: ask again until --wait runs out.
@@ -139,7 +165,7 @@ def _cmd_goto(args: argparse.Namespace) -> int:
                 break
             time.sleep(0.2)
         if err is not None:
-            print(f"rsal goto: {addr}: {err}", file=sys.stderr)
+            print(f"rsal goto: {addr}: {describe(err)}", file=sys.stderr)
             return 1
         print(f"[goto] {addr}: goal ({args.x:g}, {args.y:g}, {args.yaw:g} deg), {planner.waypoint_count} waypoints")
         t0 = time.monotonic()
@@ -197,24 +223,29 @@ def build_parser() -> argparse.ArgumentParser:
             ep.load()(sub)
         except Exception as e:  # a broken plug-in must not break the other commands
             print(f"rsal: command {ep.name!r} is unavailable: {e}", file=sys.stderr)
+    for p in sub.choices.values():  # "-v" after the command too: "rsal ls -v"
+        try:
+            p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+        except argparse.ArgumentError:  # the command has its own -v
+            pass
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Parse the command line and run the command inside the safety net; returns the exit code."""
     ap = build_parser()
     args = ap.parse_args(argv)
     if not getattr(args, "func", None):
         ap.print_help()
         return 2
-    setup_logging(args.verbose)
-    try:
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        print("rsal: interrupted", file=sys.stderr)
-        return 130
-    except (ValueError, TimeoutError, OSError) as e:
-        print(f"rsal {args.command}: {e}", file=sys.stderr)
-        return 1
+    verbose = getattr(args, "verbose", 0) or 0
+    if verbose:
+        os.environ[DEBUG_ENV] = "1"  # the processes this command starts keep their tracebacks too
+    debug = debug_enabled(verbose)
+    prog = f"rsal {args.command}"
+    setup_logging(verbose)
+    install_thread_hook(prog, debug=debug)
+    return run_guarded(prog, lambda: args.func(args), debug=debug)
 
 
 if __name__ == "__main__":

@@ -49,7 +49,7 @@ def query_rpc(
             if reply.ok is not None:
                 got.append(parse_reply(reply.ok.payload.to_bytes(), key=key))
             else:
-                parse_reply(reply.err.payload.to_bytes(), is_error=True, key=key)  # raises
+                parse_reply(reply.err.payload.to_bytes(), is_error=True, key=key, timeout=timeout)  # raises
         except RpcError as e:
             got.append(e)
 

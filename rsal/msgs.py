@@ -150,15 +150,17 @@ def error_reply(code: ErrorCode | str, message: str) -> bytes:
     return encode({"ok": False, "code": str(code), "message": str(message)})
 
 
-def parse_reply(data: bytes, *, is_error: bool = False, key: str = "") -> dict:
-    """Decode an RPC reply; raise :class:`RpcError` for an error reply or a malformed one."""
+def parse_reply(data: bytes, *, is_error: bool = False, key: str = "", timeout: float | None = None) -> dict:
+    """Decode an RPC reply; raise :class:`RpcError` for an error reply or a malformed one
+    (``timeout``, the query's, is named in a transport timeout's message)."""
     try:
         m = decode_map(data)
     except MessageError as e:
         if is_error:  # an error from the transport itself (e.g. Zenoh's "Timeout"), not from a device
             text = bytes(data).decode("utf-8", "replace").strip() or "error"
             code = ErrorCode.TIMEOUT if "timeout" in text.lower() else ErrorCode.UNAVAILABLE
-            raise RpcError(code, f"no answer from the device: {text}", key) from None
+            within = f" within {timeout:g} s" if timeout is not None else ""
+            raise RpcError(code, f"no answer from the device{within}: {text}", key) from None
         raise RpcError(ErrorCode.BAD_REQUEST, f"malformed reply: {e}", key) from None
     if is_error or not m.get("ok", False):
         raise RpcError(m.get("code", ErrorCode.INTERNAL), m.get("message", "error without a message"), key)

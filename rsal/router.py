@@ -30,7 +30,7 @@ def run_router(args: argparse.Namespace) -> int:
     try:
         session = open_session(targs)
     except ValueError as e:
-        print(f"rsal router: {e} (is the port in use, or the --config file wrong?)", file=sys.stderr, flush=True)
+        print(f"rsal router: {e}", file=sys.stderr, flush=True)
         return 1
     try:
         where = ", ".join(targs.listen) if targs.listen else (targs.config or "the configured endpoints")

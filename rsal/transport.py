@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 
 import zenoh
 
+from .errors import ENDPOINT_FORM, zenoh_summary, zenoh_text
+
 __all__ = ["DEFAULT_ENDPOINT", "TransportArgs", "add_transport_args", "make_config", "open_session", "port_free"]
 
 DEFAULT_ENDPOINT = os.environ.get("RSAL_ENDPOINT", "tcp/127.0.0.1:7447")
@@ -83,6 +85,22 @@ def port_free(endpoint: str) -> bool:
         return False
 
 
+def _insert_endpoints(conf: zenoh.Config, what: str, endpoints: list[str]) -> None:
+    try:
+        conf.insert_json5(f"{what}/endpoints", json.dumps(endpoints))
+    except Exception as e:  # ZError: the syntax of one of them
+        bad = [x for x in endpoints if not _endpoint_ok(what, x)] or endpoints
+        raise ValueError(f"bad --{what} endpoint {' '.join(bad)!r} ({zenoh_text(e)}); {ENDPOINT_FORM}") from None
+
+
+def _endpoint_ok(what: str, endpoint: str) -> bool:
+    try:
+        zenoh.Config().insert_json5(f"{what}/endpoints", json.dumps([endpoint]))
+        return True
+    except Exception:
+        return False
+
+
 def make_config(args: TransportArgs | None = None, *, server: bool = False) -> zenoh.Config:
     """A Zenoh config from the flags; ``server`` applies the device server's listen default."""
     a = args or TransportArgs()
@@ -90,7 +108,7 @@ def make_config(args: TransportArgs | None = None, *, server: bool = False) -> z
         try:
             conf = zenoh.Config.from_file(a.config)
         except Exception as e:  # zenoh raises ZError with the parser's message
-            raise ValueError(f"Zenoh config {a.config!r} cannot be read: {e}") from None
+            raise ValueError(f"Zenoh config {a.config!r} cannot be read: {zenoh_text(e)}") from None
     else:
         conf = zenoh.Config()
         conf.insert_json5("scouting/multicast/enabled", "false")
@@ -107,9 +125,9 @@ def make_config(args: TransportArgs | None = None, *, server: bool = False) -> z
         else:
             connect = [DEFAULT_ENDPOINT]
     if listen:
-        conf.insert_json5("listen/endpoints", json.dumps(listen))
+        _insert_endpoints(conf, "listen", listen)
     if connect:
-        conf.insert_json5("connect/endpoints", json.dumps(connect))
+        _insert_endpoints(conf, "connect", connect)
         # Keep retrying the connection so a client may start before its server.
         conf.insert_json5("connect/timeout_ms", "-1")
         conf.insert_json5("connect/exit_on_failure", "false")
@@ -120,7 +138,7 @@ def make_config(args: TransportArgs | None = None, *, server: bool = False) -> z
         try:
             conf.insert_json5(k, v)
         except Exception as e:
-            raise ValueError(f"--cfg {item!r}: {e}") from None
+            raise ValueError(f"--cfg {item!r}: {zenoh_text(e)}") from None
     return conf
 
 
@@ -130,4 +148,5 @@ def open_session(args: TransportArgs | None = None, *, server: bool = False) -> 
     try:
         return zenoh.open(conf)
     except Exception as e:
-        raise ValueError(f"cannot open a Zenoh session: {e}") from None
+        text = zenoh_text(e)
+        raise ValueError(zenoh_summary(text) or f"cannot open a Zenoh session: {text}") from None
