@@ -69,11 +69,16 @@ class LocalPlannerDriver(Driver):
         self._last_status = "idle"
         self._sent_stop = True
         self.base_size = None
+        self._base_described = False
 
     def setup(self) -> None:
         self.request(self.base, "describe")
         for r in self.ranges:
             self.request(r, "describe")
+
+    def ready(self) -> bool:
+        # the base's size and every ranger's beam geometry are in: the first cycle can avoid obstacles
+        return self._base_described and len(self.geometry_of) == len(self.ranges)
 
     def on_reply(self, addr, op, result, error) -> None:
         a = addr.without_key()
@@ -83,6 +88,7 @@ class LocalPlannerDriver(Driver):
             return
         g = result.get("geometry", {}) or {}
         if a == self.base:
+            self._base_described = True
             size = g.get("size")
             if (
                 isinstance(size, list)

@@ -162,6 +162,9 @@ class VirtualRanger(Driver):
         self.request(self.source, "describe")
         self.log.info("%s: adding the robots of %s to %s as %s", self.cfg.where, self.sim, self.source, self.out)
 
+    def ready(self) -> bool:
+        return self.beams is not None  # the real ranger's beam geometry is in
+
     def update(self, now: float) -> None:
         t = time.monotonic()
         if not self.fixed and not self._models_pending and t >= self._next_models:
