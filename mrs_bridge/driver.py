@@ -115,6 +115,11 @@ class Driver:
         answer (``False``) and declare them again when it does (``True``)."""
         self.server.set_online(self, online)
 
+    def warn(self, key: str, text: str, level: int = logging.WARNING) -> None:
+        """Log ``text`` rate-limited per ``key`` (at most once per 5 s, with a count of the others):
+        use it for every message that input from the network can cause."""
+        self.server._warn(f"{self.cfg.where}:{key}", text, level)
+
     def publish(self, addr: DeviceAddr, msg) -> None:
         self.server.publish(addr, msg)
 

@@ -53,6 +53,7 @@ __all__ = ["DeviceServer", "ServerError"]
 log = logging.getLogger(__name__)
 
 WARN_INTERVAL = 5.0  # s between repeated warnings about the same key
+WARN_KEYS = 4096  # rate-limiter entries kept; older ones are forgotten beyond this
 
 
 class ServerError(RuntimeError):
@@ -88,6 +89,7 @@ class _Slot:
     deadline: float = math.inf
     next_due: float = 0.0
     subs: list[Any] = field(default_factory=list)  # liveliness and input subscribers
+    reason: str = ""  # why the devices are not available (failed, withdrawn)
 
     @property
     def name(self) -> str:
@@ -387,7 +389,10 @@ class DeviceServer:
                 if not slot.missing:
                     self._setup(slot)
             elif slot.state == "running" and not alive:
-                log.warning("%s: required device %s was lost; waiting for it to return", slot.name, addr)
+                self._warn(
+                    f"lost:{slot.name}:{addr}",
+                    f"{slot.name}: required device {addr} was lost; waiting for it to return",
+                )
 
     def _on_cmd(self, addr: DeviceAddr, payload: bytes) -> None:
         self.stats["cmd"] += 1
@@ -410,11 +415,21 @@ class DeviceServer:
             qkey = str(query.key_expr)
             op = qkey.rsplit("/", 1)[-1]
             dev = self.devices.get(addr)
-            reply_key = keys.rpc_key(addr, op) if keys._NAME.match(op) else keys.rpc_key(addr, "describe")
-            if op in ("*", "**") or not keys._NAME.match(op):
+            if op in ("*", "**"):
                 op = "describe"  # a wildcard query (e.g. from `rsal ls`) gets the description
+            elif not keys._NAME.match(op):
+                self.stats["rejected"] += 1
+                query.reply_err(
+                    error_reply(
+                        ErrorCode.BAD_REQUEST,
+                        f"{addr}: {op[:40]!r} is not an operation name (letters, digits, '_', '-', '.')",
+                    )
+                )
+                return
+            reply_key = keys.rpc_key(addr, op)
             if dev is None or dev.slot.state != "running":
-                query.reply_err(error_reply(ErrorCode.UNAVAILABLE, f"{addr} is not available"))
+                why = f": {dev.slot.reason}" if dev is not None and dev.slot.reason else ""
+                query.reply_err(error_reply(ErrorCode.UNAVAILABLE, f"{addr} is not available{why}"))
                 return
             drv = dev.slot.driver
             try:
@@ -439,7 +454,9 @@ class DeviceServer:
                 self.stats["rejected"] += 1
                 query.reply_err(error_reply(e.code, e.message))
             except Exception as e:
-                log.error("%s: rpc %s failed: %s: %s", dev.slot.name, op, type(e).__name__, e)
+                self._warn(
+                    f"internal:{addr}", f"{dev.slot.name}: rpc {op} failed: {type(e).__name__}: {e}", logging.ERROR
+                )
                 log.debug("rpc failure", exc_info=True)
                 query.reply_err(error_reply(ErrorCode.INTERNAL, f"{type(e).__name__}: {e}"))
         except Exception as e:  # never let a reply problem (e.g. a closed query) stop the server
@@ -506,12 +523,16 @@ class DeviceServer:
             return
         dev.event_pub.put(encode(msg))
 
-    def _warn(self, key: str, text: str) -> None:
+    def _warn(self, key: str, text: str, level: int = logging.WARNING) -> None:
+        """Log ``text`` at most once per :data:`WARN_INTERVAL` per ``key``, with a count of the
+        suppressed ones. Every log line that outside input can cause goes through here."""
         now = time.monotonic()
         last, suppressed = self._warned.get(key, (-math.inf, 0))
         if now - last >= WARN_INTERVAL:
             extra = f" ({suppressed} more like it suppressed)" if suppressed else ""
-            log.warning("%s%s", text, extra)
+            log.log(level, "%s%s", text, extra)
+            if len(self._warned) >= WARN_KEYS and key not in self._warned:
+                self._warned = {k: v for k, v in self._warned.items() if now - v[0] < WARN_INTERVAL}
             self._warned[key] = (now, 0)
         else:
             self._warned[key] = (last, suppressed + 1)

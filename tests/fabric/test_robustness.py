@@ -1,0 +1,69 @@
+"""No single request or peer can freeze or kill a device server (DESIGN "Defaults that must hold").
+
+Each test starts a real ``rsal sim`` process and probes it over real Zenoh from this process (or
+from a second process where the misbehaving peer must not share our session): op names the key
+rule rejects, poses far outside the world, removed models, oversized payloads, long ``step``
+requests, slow subscribers, and driver failures. Verdicts come from the server's replies, its
+ground truth (``get_pose``, the simulation time) and ``/proc/<pid>/status``.
+"""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+from conftest import MAPS, rsal_cmd, wait_until
+
+from rsal import keys
+from rsal.keys import DeviceAddr
+from rsal.msgs import ErrorCode, RpcError, parse_reply
+
+WORLD = str(MAPS / "testroom.world")
+R0_DEVICES = 8  # r0's devices in testroom.world; plus sim:simulation:0 and the map
+
+
+def start_sim(procs, port, *extra):
+    return procs(rsal_cmd("sim", WORLD, "--listen", f"tcp/127.0.0.1:{port}", *extra))
+
+
+def ready(procs, port, fabric_factory, *extra):
+    server = start_sim(procs, port, *extra)
+    fab = fabric_factory(port)
+    node = fab.node("**")
+    node.wait_for("**", count=R0_DEVICES + 2, timeout=30)
+    return server, fab, node
+
+
+def raw_rpc(session, key: str, payload: bytes = b"", timeout: float = 5.0) -> dict:
+    """One rpc by hand on a raw key; returns the reply map or raises :class:`RpcError`."""
+    for r in session.get(key, payload=payload, timeout=timeout):
+        if r.ok is not None:
+            return parse_reply(r.ok.payload.to_bytes(), key=key)
+        return parse_reply(r.err.payload.to_bytes(), is_error=True, key=key)
+    raise RpcError(ErrorCode.TIMEOUT, "no reply", key)
+
+
+def rss_kib(pid: int) -> int:
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    raise AssertionError("no VmRSS")
+
+
+def test_bad_op_names_get_bad_request_and_bounded_logs(procs, port, fabric_factory):
+    server, fab, _ = ready(procs, port, fabric_factory)
+    base = f"{keys.PREFIX}/r0/position2d/0/rpc/"
+    lines0 = len(server.output().splitlines())
+    codes = set()
+    for i in range(300):
+        op = ("a b", "é", f"x y{i}")[i % 3]
+        with pytest.raises(RpcError) as ei:
+            raw_rpc(fab.session, base + op)
+        codes.add(ei.value.code)
+    assert codes == {ErrorCode.BAD_REQUEST}
+    # a wildcard op still describes, and the server still answers
+    assert fab.device("r0:position2d:0").describe().interface == "position2d"
+    new = server.output().splitlines()[lines0:]
+    assert len(new) <= 5, new  # 300 bad requests: no line each
+    assert server.alive()
