@@ -11,6 +11,8 @@ or on another server. The server owns all Zenoh entities; a driver only implemen
   :class:`~rsal.msgs.RpcError` for typed error replies;
 - ``geometry(addr)`` and ``ops(addr)`` for ``rpc/describe``; ``shutdown()`` to stop motors;
 - ``set_online(flag)`` withdraws/re-declares the devices' tokens while hardware is silent;
+- ``depends_on`` lists drivers of the same server this one needs (the ``sim`` drivers need the
+  ``simulation`` driver's world): when one of them fails, this driver's devices are withdrawn too;
 - ``send(addr, msg)`` commands a required device; ``request(addr, op, args)`` calls its rpc without
   blocking and the answer arrives in ``on_reply(addr, op, result, error)``.
 
@@ -70,6 +72,9 @@ class Driver:
         self.server = server
         self.rate = float(cfg.rate or self.default_rate)
         self.log = logging.getLogger(f"mrs_bridge.{self.driver_name}")
+        #: drivers in this server this one cannot work without: when one fails, this one fails too
+        #: (its devices are withdrawn)
+        self.depends_on: list[Driver] = []
         for a in cfg.provides:
             if "*" not in self.interfaces and a.interface not in self.interfaces:
                 raise MessageError(

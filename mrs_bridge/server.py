@@ -275,6 +275,37 @@ class DeviceServer:
                 return self._call(slot, fn, *args)
         return None
 
+    def hosted(self, cls: type) -> list[Driver]:
+        """Every driver of class ``cls`` this server hosts, whatever its state."""
+        return [s.driver for s in self.slots if isinstance(s.driver, cls)]
+
+    def _slot_of(self, driver: Driver) -> _Slot | None:
+        return next((s for s in self.slots if s.driver is driver), None)
+
+    def withdraw(self, driver: Driver, reason: str) -> None:
+        """Take a running driver's devices off the fabric while the server runs on (e.g. a robot
+        removed from the simulation): ``shutdown()``, tokens withdrawn, no more updates, and every
+        rpc answered ``unavailable`` with ``reason``. Scheduler thread only."""
+        slot = self._slot_of(driver)
+        if slot is None or slot.state != "running":
+            return
+        self._call(slot, driver.shutdown, fail=False)
+        slot.state = "stopped"
+        slot.reason = reason
+        self.set_online(driver, False)
+        log.info("%s: devices withdrawn: %s", slot.name, reason)
+
+    def reinstate(self, driver: Driver) -> None:
+        """Undo :meth:`withdraw`: the devices serve and their tokens return. Scheduler thread only."""
+        slot = self._slot_of(driver)
+        if slot is None or slot.state != "stopped" or not slot.reason:
+            return
+        slot.state = "running"
+        slot.reason = ""
+        slot.next_due = time.monotonic()
+        self.set_online(driver, True)
+        log.info("%s: devices back", slot.name)
+
     def set_online(self, driver: Driver, online: bool) -> None:
         """Withdraw (``online`` false) or re-declare the liveliness tokens of ``driver``'s devices,
         for hardware that stops answering and comes back (clients see the devices lost, then found).
@@ -299,7 +330,10 @@ class DeviceServer:
                 slot.driver.shutdown()
             except Exception as e:
                 log.warning("%s: shutdown after failure: %s", slot.name, e)
+        if slot.state == "failed":
+            return
         slot.state = "failed"
+        slot.reason = "its driver failed"
         self._failed += 1
         self._pub_cache.clear()
         for a in slot.driver.cfg.provides:
@@ -312,6 +346,12 @@ class DeviceServer:
             except Exception:
                 pass
         slot.subs.clear()
+        # Drivers that depend on this one in this process (e.g. the sim drivers on the simulation's
+        # world) cannot work without it: they fail too, so no token outlives what it stands for.
+        for other in self.slots:
+            if other.state in ("running", "waiting", "stopped") and slot.driver in other.driver.depends_on:
+                log.error("%s: withdrawn because %s failed", other.name, slot.name)
+                self._fail(other, None)
 
     def _setup(self, slot: _Slot) -> None:
         drv = slot.driver

@@ -9,8 +9,6 @@ ground truth (``get_pose``, the simulation time) and ``/proc/<pid>/status``.
 
 from __future__ import annotations
 
-import time
-
 import pytest
 from conftest import MAPS, rsal_cmd, wait_until
 
@@ -67,3 +65,52 @@ def test_bad_op_names_get_bad_request_and_bounded_logs(procs, port, fabric_facto
     new = server.output().splitlines()[lines0:]
     assert len(new) <= 5, new  # 300 bad requests: no line each
     assert server.alive()
+
+
+def test_far_poses_are_refused_and_the_world_keeps_stepping(procs, port, fabric_factory):
+    server, fab, node = ready(procs, port, fabric_factory)
+    sim = node.device("sim:simulation:0")
+    pose0 = sim.rpc("get_pose", name="r0")["pose"]
+    for far in ([1e6, 1e6, 0.0], [1e4, 1e4, 0.0], [-1e3, 0.0, 0.0]):
+        with pytest.raises(RpcError) as ei:
+            sim.rpc("set_pose", name="r0", pose=far)
+        assert ei.value.code == ErrorCode.OUT_OF_RANGE, ei.value
+        assert "outside the world" in ei.value.message
+    assert sim.rpc("get_pose", name="r0")["pose"] == pytest.approx(pose0, abs=1e-3)
+    # the world keeps stepping and every robot device is still there
+    t0 = sim.wait_for_data(5).t
+    wait_until(lambda: sim.latest.t > t0 + 0.5, 10, "the simulation time to advance")
+    assert len(node.devices()) == R0_DEVICES + 2 and server.alive()
+    # a pose inside the world is still accepted
+    assert sim.rpc("set_pose", name="r0", pose=[0.5, 0.0, 0.0])["pose"] == [0.5, 0.0, 0.0]
+
+
+def test_set_odom_is_bounded_and_a_removed_robots_devices_are_withdrawn(procs, port, fabric_factory):
+    server, fab, node = ready(procs, port, fabric_factory)
+    pos = fab.device("r0:position2d:0")
+    with pytest.raises(RpcError) as ei:
+        pos.rpc("set_odom", pose=[1e300, 0.0, 0.0])
+    assert ei.value.code == ErrorCode.OUT_OF_RANGE
+    assert pos.rpc("set_odom", pose=[1.0, 2.0, 0.0])["pose"] == [1.0, 2.0, 0.0]
+
+    sim = fab.device("sim:simulation:0")
+    sim.rpc("remove_model", name="r0")
+    laser = parse("r0:laser:0")
+    node.wait_gone(laser, timeout=5)
+    wait_until(lambda: not [a for a in node.devices() if a.node == "r0"], 5, "every r0 token to go")
+    for dev in ("r0:laser:0", "r0:ranger:1", "r0:position2d:0"):
+        with pytest.raises(RpcError) as ei:
+            fab.device(dev).describe()
+        assert ei.value.code == ErrorCode.UNAVAILABLE, ei.value
+        assert "removed" in ei.value.message
+    # a reset brings the robot and its devices back
+    sim.rpc("reset")
+    node.wait_for("r0:*:*", count=R0_DEVICES, timeout=10)
+    assert fab.device("r0:laser:0").describe().interface == "laser"
+    assert "Traceback" not in server.output()
+
+
+def parse(text: str) -> DeviceAddr:
+    from rsal.keys import parse_device
+
+    return parse_device(text)
