@@ -21,6 +21,7 @@ that names the missing devices.
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
 import queue
@@ -54,6 +55,49 @@ log = logging.getLogger(__name__)
 
 WARN_INTERVAL = 5.0  # s between repeated warnings about the same key
 WARN_KEYS = 4096  # rate-limiter entries kept; older ones are forgotten beyond this
+MAX_PAYLOAD = 64 * 1024  # bytes: larger cmd/rpc payloads are refused before decoding
+MAX_INPUT = 4 * 1024 * 1024  # bytes: larger data/event samples from required devices are dropped
+INBOX_MAX = 1024  # items waiting for the scheduler; beyond it cmds are dropped and rpcs answered busy
+
+
+class _Inbox:
+    """The scheduler's queue: bounded for input from the network (:meth:`offer` refuses when
+    ``maxsize`` items wait), unbounded for the server's own items (``force``: replies to its own
+    requests, liveliness changes, wake-ups), which are few by construction."""
+
+    def __init__(self, maxsize: int):
+        self.maxsize = maxsize
+        self._q: collections.deque = collections.deque()
+        self._cv = threading.Condition(threading.Lock())
+
+    def offer(self, item, force: bool = False) -> bool:
+        with self._cv:
+            if not force and len(self._q) >= self.maxsize:
+                return False
+            self._q.append(item)
+            self._cv.notify()
+            return True
+
+    def put(self, item) -> None:
+        self.offer(item, force=True)
+
+    def empty(self) -> bool:
+        return not self._q
+
+    def qsize(self) -> int:
+        return len(self._q)
+
+    def get_nowait(self):
+        with self._cv:
+            if not self._q:
+                raise queue.Empty
+            return self._q.popleft()
+
+    def get(self, timeout: float):
+        with self._cv:
+            if not self._q and not self._cv.wait_for(lambda: self._q, timeout):
+                raise queue.Empty
+            return self._q.popleft()
 
 
 class ServerError(RuntimeError):
@@ -111,12 +155,13 @@ class DeviceServer:
         self.require_timeout = float(require_timeout)
         self.registry = drivers if drivers is not None else DRIVERS
         self.shared: dict[str, Any] = shared if shared is not None else {}
-        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self.inbox = _Inbox(INBOX_MAX)
         self.slots: list[_Slot] = []
         self.devices: dict[DeviceAddr, _Device] = {}
         self._stop = threading.Event()
         self._warned: dict[str, tuple[float, int]] = {}
-        self.stats = {"cmd": 0, "rpc": 0, "rejected": 0, "published": 0}
+        self.stats = {"cmd": 0, "rpc": 0, "rejected": 0, "published": 0, "too_large": 0, "dropped": 0, "busy": 0}
+        self._reported = (0, 0, 0)  # too_large, dropped, busy already warned about
         self._failed = 0  # drivers that failed (the loop checks whether any still works)
         self._pub_cache: dict[int, tuple[DeviceAddr, Any]] = {}  # id(addr) -> (addr, publisher's put)
 
@@ -213,6 +258,7 @@ class DeviceServer:
                 except queue.Empty:
                     item = None
             self._run_due(time.monotonic())
+            self._report_overload()
             if self._failed and not any(s.state in ("running", "waiting") for s in self.slots):
                 raise ServerError("no driver is working any more; see the errors above")
 
@@ -361,8 +407,8 @@ class DeviceServer:
                 slot.subs.append(
                     self.session.declare_subscriber(
                         key,
-                        lambda s, slot=slot, r=r, ch=channel: self.inbox.put(
-                            ("input", slot, r, ch, s.payload.to_bytes())
+                        lambda s, slot=slot, r=r, ch=channel: self._on_sample(
+                            ("input", slot, r, ch), s.payload, MAX_INPUT
                         ),
                     )
                 )
@@ -384,17 +430,55 @@ class DeviceServer:
             congestion_control=zenoh.CongestionControl.BLOCK,
         )
         dev.cmd_sub = s.declare_subscriber(
-            keys.cmd_key(addr), lambda smp, a=addr: self.inbox.put(("cmd", a, smp.payload.to_bytes()))
+            keys.cmd_key(addr), lambda smp, a=addr: self._on_sample(("cmd", a), smp.payload, MAX_PAYLOAD)
         )
-        dev.rpc_q = s.declare_queryable(
-            f"{keys.PREFIX}/{addr.path}/rpc/*", lambda q, a=addr: self.inbox.put(("rpc", a, q))
-        )
+        dev.rpc_q = s.declare_queryable(f"{keys.PREFIX}/{addr.path}/rpc/*", lambda q, a=addr: self._on_query(a, q))
         if slot.driver.online:  # hardware not answering yet: its token comes with set_online(True)
             dev.token = s.liveliness().declare_token(keys.device_key(addr))
         self.devices[addr] = dev
         self._pub_cache.clear()
 
     # ------------------------------------------------------------------ inbound
+    # The three callbacks below run on Zenoh's threads: they only check sizes, count and queue.
+    def _offer(self, item: tuple) -> bool:
+        if self.inbox.offer(item):
+            return True
+        self.stats["dropped"] += 1
+        return False
+
+    def _on_sample(self, head: tuple, payload, limit: int) -> None:
+        if len(payload) > limit:  # refused before it is copied or decoded
+            self.stats["too_large"] += 1
+            return
+        self._offer((*head, payload.to_bytes()))
+
+    def _on_query(self, addr: DeviceAddr, query) -> None:
+        if self._offer(("rpc", addr, query)):
+            return
+        # Full: the one Zenoh call made on a callback thread; an error reply does not wait.
+        self.stats["busy"] += 1
+        try:
+            query.reply_err(error_reply(ErrorCode.BUSY, f"{addr}: the server is busy; try again later"))
+        except Exception:
+            pass
+        finally:
+            try:
+                query.drop()
+            except Exception:
+                pass
+
+    def _report_overload(self) -> None:
+        now = (self.stats["too_large"], self.stats["dropped"], self.stats["busy"])
+        if now != self._reported:
+            d = [a - b for a, b in zip(now, self._reported, strict=True)]
+            self._warn(
+                "overload",
+                f"refused {d[0]} sample(s) over the size limit, dropped {d[1]} item(s) and answered {d[2]} "
+                f"rpc(s) busy because the inbox ({INBOX_MAX} items) was full",
+            )
+            if self._warned["overload"][1] == 0:  # logged now: count from here
+                self._reported = now
+
     def _handle(self, item: tuple) -> None:
         kind = item[0]
         if kind == "cmd":
@@ -472,6 +556,16 @@ class DeviceServer:
                 query.reply_err(error_reply(ErrorCode.UNAVAILABLE, f"{addr} is not available{why}"))
                 return
             drv = dev.slot.driver
+            size = len(query.payload) if query.payload is not None else 0
+            if size > MAX_PAYLOAD:
+                self.stats["too_large"] += 1
+                self._reported = (self._reported[0] + 1, *self._reported[1:])  # answered: no warning
+                query.reply_err(
+                    error_reply(
+                        ErrorCode.TOO_LARGE, f"{addr}: request of {size} bytes is over the limit of {MAX_PAYLOAD}"
+                    )
+                )
+                return
             try:
                 args = decode_map(query.payload.to_bytes() if query.payload is not None else b"")
                 if op == "describe":

@@ -114,3 +114,33 @@ def parse(text: str) -> DeviceAddr:
     from rsal.keys import parse_device
 
     return parse_device(text)
+
+
+def test_oversized_payloads_are_refused_and_memory_returns_near_its_baseline(procs, port, fabric_factory):
+    from mrs_bridge.server import MAX_PAYLOAD
+
+    server, fab, node = ready(procs, port, fabric_factory)
+    s = fab.session
+    pos = fab.device("r0:position2d:0")
+    pos.rpc("stop")
+    base = rss_kib(server.pid)
+    big = b"\x00" * (4 * 1024 * 1024)  # 4 MiB, 64 times the limit
+    devs = list(node.devices())
+    for _ in range(8):  # 8 rounds x 10 devices x 4 MiB = 320 MiB of cmds
+        for a in devs:
+            s.put(keys.cmd_key(a), big)
+    codes = set()
+    for i in range(20):  # 80 MiB of rpcs
+        with pytest.raises(RpcError) as ei:
+            raw_rpc(s, keys.rpc_key(devs[i % len(devs)], "describe"), big)
+        codes.add(ei.value.code)
+    assert codes == {ErrorCode.TOO_LARGE}
+    with pytest.raises(RpcError) as ei:  # one byte over the limit is refused too
+        raw_rpc(s, keys.rpc_key(pos.addr, "set_odom"), b"\x00" * (MAX_PAYLOAD + 1))
+    assert ei.value.code == ErrorCode.TOO_LARGE
+    assert pos.rpc("set_odom", pose=[0.0, 0.0, 0.0])["pose"] == [0.0, 0.0, 0.0]  # still serving
+    after = rss_kib(server.pid)
+    print(f"server RSS: {base / 1024:.0f} MiB before, {after / 1024:.0f} MiB after 400 MiB of oversized payloads")
+    assert after - base < 64 * 1024, (base, after)
+    wait_until(lambda: "over the size limit" in server.output(), 10, "one warning about the refused cmds")
+    assert server.output().count("over the size limit") <= 2

@@ -441,3 +441,43 @@ def test_a_failed_driver_takes_the_drivers_that_depend_on_it_along(servers, port
     assert fab.rpc(parse_device("c0:dio:0"), "scale", {"k": 1})["result"] == 2.0
     errors = [r.getMessage() for r in caplog_bridge.records if r.levelno == logging.ERROR]
     assert any("withdrawn because" in m and "simulation" in m for m in errors), errors
+
+
+def test_a_full_inbox_drops_cmds_and_answers_rpcs_busy():
+    """Zenoh's callbacks never wait and never queue more than INBOX_MAX items from the network."""
+    import textwrap
+
+    from conftest import FakeSession
+
+    from mrs_bridge.config import parse_config
+    from mrs_bridge.server import INBOX_MAX, DeviceServer
+
+    class Query:
+        payload = None
+
+        def __init__(self):
+            self.errors = []
+
+        def reply_err(self, payload):
+            self.errors.append(msgpack.unpackb(payload))
+
+        def drop(self):
+            pass
+
+    class Payload(bytes):
+        def to_bytes(self):
+            return bytes(self)
+
+    srv = DeviceServer(parse_config(textwrap.dedent(TWO_COUNTERS), source="t.toml"), FakeSession(), drivers=DRIVERS)
+    a = parse_device("r0:dio:0")
+    cmd = Payload(encode(VelocityCmd(0.1, 0.0)))
+    for _ in range(INBOX_MAX + 10):
+        srv._on_sample(("cmd", a), cmd, 1024)
+    assert srv.inbox.qsize() == INBOX_MAX and srv.stats["dropped"] == 10
+    q = Query()
+    srv._on_query(a, q)
+    assert [e["code"] for e in q.errors] == [ErrorCode.BUSY] and srv.stats["busy"] == 1
+    srv._on_sample(("cmd", a), Payload(b"x" * 2048), 1024)  # over the limit: not even queued
+    assert srv.stats["too_large"] == 1 and srv.inbox.qsize() == INBOX_MAX
+    srv.stop()  # the server's own items still get in
+    assert srv.inbox.qsize() == INBOX_MAX + 1
