@@ -8,7 +8,8 @@ or on another server. The server owns all Zenoh entities; a driver only implemen
 - ``on_cmd(addr, msg)`` for a decoded ``cmd`` map; raise :class:`~rsal.msgs.MessageError` (or
   :class:`OutOfRange`) to reject it: the server logs a rate-limited warning and nothing changes;
 - ``on_rpc(addr, op, args)`` returning a result map; raise ``MessageError``/``OutOfRange``/
-  :class:`~rsal.msgs.RpcError` for typed error replies;
+  :class:`~rsal.msgs.RpcError` for typed error replies, or return a :class:`Deferred` for a long
+  operation that the server continues in slices and answers when done;
 - ``geometry(addr)`` and ``ops(addr)`` for ``rpc/describe``; ``shutdown()`` to stop motors;
 - ``set_online(flag)`` withdraws/re-declares the devices' tokens while hardware is silent;
 - ``depends_on`` lists drivers of the same server this one needs (the ``sim`` drivers need the
@@ -32,7 +33,7 @@ from .config import DriverConfig
 if TYPE_CHECKING:
     from .server import DeviceServer
 
-__all__ = ["Driver", "OutOfRange", "DRIVERS", "register"]
+__all__ = ["Driver", "Deferred", "OutOfRange", "DRIVERS", "register"]
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +54,16 @@ def register(*names: str):
 
 class OutOfRange(MessageError):
     """A well-formed value outside what the device accepts."""
+
+
+class Deferred:
+    """What ``on_rpc`` returns for an operation too long for one go (e.g. ``step`` of 10,000
+    simulation steps): the server calls ``step()`` once per scheduler pass, between the other
+    requests and the drivers' updates, until it returns the result map; then it replies. ``step``
+    may raise the usual typed errors. Keep each call short (milliseconds)."""
+
+    def __init__(self, step):
+        self.step = step
 
 
 class Driver:

@@ -47,7 +47,7 @@ from rsal.msgs import (
 )
 
 from .config import ConfigError, DriverConfig, ServerConfig
-from .driver import DRIVERS, Driver, OutOfRange
+from .driver import DRIVERS, Deferred, Driver, OutOfRange
 
 __all__ = ["DeviceServer", "ServerError"]
 
@@ -164,6 +164,7 @@ class DeviceServer:
         self._reported = (0, 0, 0)  # too_large, dropped, busy already warned about
         self._failed = 0  # drivers that failed (the loop checks whether any still works)
         self._pub_cache: dict[int, tuple[DeviceAddr, Any]] = {}  # id(addr) -> (addr, publisher's put)
+        self._pending: list[tuple] = []  # long rpcs in progress: (device, op, reply key, query, Deferred)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -241,7 +242,7 @@ class DeviceServer:
             if not self.inbox.empty():
                 item = self.inbox.get_nowait()
             else:
-                timeout = self._next_wakeup(now)
+                timeout = 0.0 if self._pending else self._next_wakeup(now)
                 if timeout > 0:
                     try:
                         item = self.inbox.get(timeout=timeout)
@@ -258,6 +259,8 @@ class DeviceServer:
                 except queue.Empty:
                     item = None
             self._run_due(time.monotonic())
+            if self._pending:
+                self._run_pending()
             self._report_overload()
             if self._failed and not any(s.state in ("running", "waiting") for s in self.slots):
                 raise ServerError("no driver is working any more; see the errors above")
@@ -535,6 +538,7 @@ class DeviceServer:
 
     def _on_rpc(self, addr: DeviceAddr, query) -> None:
         self.stats["rpc"] += 1
+        keep = False
         try:
             qkey = str(query.key_expr)
             op = qkey.rsplit("/", 1)[-1]
@@ -555,7 +559,6 @@ class DeviceServer:
                 why = f": {dev.slot.reason}" if dev is not None and dev.slot.reason else ""
                 query.reply_err(error_reply(ErrorCode.UNAVAILABLE, f"{addr} is not available{why}"))
                 return
-            drv = dev.slot.driver
             size = len(query.payload) if query.payload is not None else 0
             if size > MAX_PAYLOAD:
                 self.stats["too_large"] += 1
@@ -566,40 +569,70 @@ class DeviceServer:
                     )
                 )
                 return
-            try:
-                args = decode_map(query.payload.to_bytes() if query.payload is not None else b"")
-                if op == "describe":
-                    result = self.describe(addr).to_dict()
-                else:
-                    if op not in drv.ops(addr):
-                        raise RpcError(
-                            ErrorCode.UNKNOWN_OP,
-                            f"{addr} has no operation {op!r}; it has: {', '.join(drv.all_ops(addr))}",
-                        )
-                    result = drv.on_rpc(addr, op, args) or {}
-                query.reply(reply_key, ok_reply(**result))
-            except OutOfRange as e:
-                self.stats["rejected"] += 1
-                query.reply_err(error_reply(ErrorCode.OUT_OF_RANGE, str(e)))
-            except MessageError as e:
-                self.stats["rejected"] += 1
-                query.reply_err(error_reply(ErrorCode.BAD_REQUEST, str(e)))
-            except RpcError as e:
-                self.stats["rejected"] += 1
-                query.reply_err(error_reply(e.code, e.message))
-            except Exception as e:
-                self._warn(
-                    f"internal:{addr}", f"{dev.slot.name}: rpc {op} failed: {type(e).__name__}: {e}", logging.ERROR
-                )
-                log.debug("rpc failure", exc_info=True)
-                query.reply_err(error_reply(ErrorCode.INTERNAL, f"{type(e).__name__}: {e}"))
+            keep = self._answer(dev, op, reply_key, query, lambda: self._rpc_result(dev, op, query))
         except Exception as e:  # never let a reply problem (e.g. a closed query) stop the server
             self._warn(f"rpc:{addr}", f"could not answer an rpc on {addr}: {type(e).__name__}: {e}")
         finally:
+            if not keep:
+                try:
+                    query.drop()
+                except Exception:
+                    pass
+
+    def _rpc_result(self, dev: _Device, op: str, query):
+        addr, drv = dev.addr, dev.slot.driver
+        args = decode_map(query.payload.to_bytes() if query.payload is not None else b"")
+        if op == "describe":
+            return self.describe(addr).to_dict()
+        if op not in drv.ops(addr):
+            raise RpcError(
+                ErrorCode.UNKNOWN_OP, f"{addr} has no operation {op!r}; it has: {', '.join(drv.all_ops(addr))}"
+            )
+        return drv.on_rpc(addr, op, args) or {}
+
+    def _answer(self, dev: _Device, op: str, reply_key: str, query, fn) -> bool:
+        """Reply to ``query`` with ``fn()``'s result or its typed error. A :class:`Deferred` result
+        is kept and continued on later scheduler passes: returns True then (the query stays open)."""
+        try:
+            result = fn()
+            if isinstance(result, Deferred):
+                self._pending.append((dev, op, reply_key, query, result))
+                return True
+            query.reply(reply_key, ok_reply(**result))
+        except OutOfRange as e:
+            self.stats["rejected"] += 1
+            query.reply_err(error_reply(ErrorCode.OUT_OF_RANGE, str(e)))
+        except MessageError as e:
+            self.stats["rejected"] += 1
+            query.reply_err(error_reply(ErrorCode.BAD_REQUEST, str(e)))
+        except RpcError as e:
+            self.stats["rejected"] += 1
+            query.reply_err(error_reply(e.code, e.message))
+        except Exception as e:
+            self._warn(
+                f"internal:{dev.addr}", f"{dev.slot.name}: rpc {op} failed: {type(e).__name__}: {e}", logging.ERROR
+            )
+            log.debug("rpc failure", exc_info=True)
+            query.reply_err(error_reply(ErrorCode.INTERNAL, f"{type(e).__name__}: {e}"))
+        return False
+
+    def _run_pending(self) -> None:
+        """One slice of every long operation in progress (see :class:`~mrs_bridge.driver.Deferred`)."""
+        pending, self._pending = self._pending, []
+        for dev, op, reply_key, query, deferred in pending:
+            keep = False
             try:
-                query.drop()
-            except Exception:
-                pass
+                if dev.slot.state != "running":
+                    query.reply_err(error_reply(ErrorCode.UNAVAILABLE, f"{dev.addr} is not available"))
+                else:
+                    keep = self._answer(dev, op, reply_key, query, lambda d=deferred: _continue(d))
+            except Exception as e:
+                self._warn(f"rpc:{dev.addr}", f"could not answer an rpc on {dev.addr}: {type(e).__name__}: {e}")
+            if not keep:
+                try:
+                    query.drop()
+                except Exception:
+                    pass
 
     def describe(self, addr: DeviceAddr) -> Describe:
         dev = self.devices[addr]
@@ -670,6 +703,12 @@ class DeviceServer:
             self._warned[key] = (now, 0)
         else:
             self._warned[key] = (last, suppressed + 1)
+
+
+def _continue(deferred: Deferred):
+    """One slice of a long operation: its result map, or the :class:`Deferred` itself if not done."""
+    result = deferred.step()
+    return deferred if result is None else result
 
 
 def make_driver_config(name: str, provides: list[str], node: str, **params) -> DriverConfig:

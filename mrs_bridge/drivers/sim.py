@@ -39,11 +39,12 @@ from rsal.msgs import (
 )
 
 from ..config import ConfigError
-from ..driver import Driver, OutOfRange, register
+from ..driver import Deferred, Driver, OutOfRange, register
 
 __all__ = ["SimulationDriver", "SimDriver"]
 
 WORLD_KEY = "simulator.world"
+STEP_SLICE = 0.01  # s of stepping per scheduler pass for rpc/step
 ODOM_LIMIT = 1e5  # m (and rad): the largest odometry value set_odom accepts
 
 
@@ -129,12 +130,7 @@ class SimulationDriver(Driver):
                 w.pause(get_bool(args, "paused", True))
                 return {"paused": w.paused}
             if op == "step":
-                n = get_int(args, "n", 1, lo=1, hi=10000)
-                for _ in range(n):
-                    w.step()
-                    for d in self.server.drivers_of(SimDriver):
-                        self.server.call_driver(d, d.on_step, w)
-                return {"t": w.time, "steps": w.steps}
+                return self._step(get_int(args, "n", 1, lo=1, hi=10000))
             if op == "reset":
                 w.reset()
                 for d in self.server.hosted(SimDriver):  # removed robots come back with the reset
@@ -153,6 +149,24 @@ class SimulationDriver(Driver):
         except ModelError as e:
             raise RpcError(ErrorCode.NOT_FOUND, str(e)) from None
         return super().on_rpc(addr, op, args)
+
+    def _step(self, n: int) -> Deferred:
+        """``n`` steps in slices of at most STEP_SLICE seconds, between the server's other work."""
+        left = [n]
+
+        def work():
+            w = self.world
+            t_end = time.perf_counter() + STEP_SLICE
+            while left[0] > 0:
+                w.step()
+                left[0] -= 1
+                for d in self.server.drivers_of(SimDriver):
+                    self.server.call_driver(d, d.on_step, w)
+                if time.perf_counter() >= t_end:
+                    break
+            return None if left[0] else {"t": w.time, "steps": w.steps}
+
+        return Deferred(work)
 
 
 def _battery_volts(percent: float) -> float:

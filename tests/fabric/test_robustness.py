@@ -9,6 +9,8 @@ ground truth (``get_pose``, the simulation time) and ``/proc/<pid>/status``.
 
 from __future__ import annotations
 
+import time
+
 import pytest
 from conftest import MAPS, rsal_cmd, wait_until
 
@@ -144,3 +146,24 @@ def test_oversized_payloads_are_refused_and_memory_returns_near_its_baseline(pro
     assert after - base < 64 * 1024, (base, after)
     wait_until(lambda: "over the size limit" in server.output(), 10, "one warning about the refused cmds")
     assert server.output().count("over the size limit") <= 2
+
+
+def test_a_long_step_does_not_block_the_other_devices(procs, port, fabric_factory):
+    server, fab, node = ready(procs, port, fabric_factory)
+    sim, laser = fab.device("sim:simulation:0"), fab.device("r0:laser:0")
+    sim.rpc("pause", paused=True)
+    steps0 = sim.wait_for_data(5).steps
+    fut = sim.rpc_async("step", n=10000, timeout=300)
+    wait_until(lambda: sim.latest.steps > steps0 + 50, 10, "the long step to be under way")
+    worst, calls = 0.0, 0
+    t_end = time.monotonic() + 2.0
+    while not fut.done() and time.monotonic() < t_end:  # sample for 2 s while it runs
+        t0 = time.perf_counter()
+        assert laser.rpc("describe")["interface"] == "laser"
+        worst = max(worst, time.perf_counter() - t0)
+        calls += 1
+    print(f"worst describe latency during step 10000: {worst * 1e3:.0f} ms over {calls} calls")
+    assert calls >= 5 and worst < 0.5, (calls, worst)
+    assert not fut.done()  # 10,000 steps take longer than that; a shorter one started now
+    short = sim.rpc("step", n=50, timeout=30)  # runs alongside, completes and answers
+    assert short["steps"] >= steps0 + 50 and not fut.done()
