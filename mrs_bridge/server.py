@@ -427,10 +427,13 @@ class DeviceServer:
         s = self.session
         dev = _Device(addr, slot)
         dev.pub = s.declare_publisher(keys.data_key(addr))
+        # Reliable, but never blocking: the scheduler publishes, and a peer that reads slowly must
+        # not hold it up (with BLOCK, a full link to one slow subscriber stalls the whole server).
+        # An event to a congested peer is dropped for that peer only.
         dev.event_pub = s.declare_publisher(
             keys.event_key(addr),
             reliability=zenoh.Reliability.RELIABLE,
-            congestion_control=zenoh.CongestionControl.BLOCK,
+            congestion_control=zenoh.CongestionControl.DROP,
         )
         dev.cmd_sub = s.declare_subscriber(
             keys.cmd_key(addr), lambda smp, a=addr: self._on_sample(("cmd", a), smp.payload, MAX_PAYLOAD)
