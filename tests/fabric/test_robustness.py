@@ -167,3 +167,42 @@ def test_a_long_step_does_not_block_the_other_devices(procs, port, fabric_factor
     assert not fut.done()  # 10,000 steps take longer than that; a shorter one started now
     short = sim.rpc("step", n=50, timeout=30)  # runs alongside, completes and answers
     assert short["steps"] >= steps0 + 50 and not fut.done()
+
+
+SLOW = """
+import sys, time, zenoh
+conf = zenoh.Config()
+conf.insert_json5("mode", '"peer"')
+conf.insert_json5("connect/endpoints", '["tcp/127.0.0.1:%s"]' % sys.argv[1])
+conf.insert_json5("scouting/multicast/enabled", "false")
+s = zenoh.open(conf)
+sub = s.declare_subscriber("rsal/**", lambda smp: time.sleep(0.5))
+print("subscribed", flush=True)
+time.sleep(120)
+"""
+
+
+def test_a_slow_subscriber_does_not_hold_up_the_others(procs, port, fabric_factory):
+    import sys
+
+    server, fab, node = ready(procs, port, fabric_factory)
+    pos, grip, laser = (fab.device(a) for a in ("r0:position2d:0", "r0:gripper:0", "r0:laser:0"))
+    pos.wait_for_data(5)
+
+    def window(seconds: float) -> tuple[float, float]:
+        """Position2d samples per second and the worst rpc latency, while gripper events fire."""
+        n0, t_end, worst, k = pos.count, time.monotonic() + seconds, 0.0, 0
+        while time.monotonic() < t_end:
+            grip.rpc(("open", "close")[k % 2])
+            k += 1
+            t0 = time.perf_counter()
+            laser.rpc("describe")
+            worst = max(worst, time.perf_counter() - t0)
+        return (pos.count - n0) / seconds, worst
+
+    rate0, worst0 = window(2.0)
+    slow = procs([sys.executable, "-c", SLOW, str(port)])
+    wait_until(lambda: "subscribed" in slow.output(), 10, "the slow subscriber")
+    rate1, worst1 = window(4.0)
+    print(f"position2d {rate0:.1f} -> {rate1:.1f} Hz, worst rpc {worst0 * 1e3:.0f} -> {worst1 * 1e3:.0f} ms")
+    assert rate1 >= 0.7 * rate0 and worst1 < 0.5, (rate0, rate1, worst0, worst1)
