@@ -29,6 +29,7 @@ from collections import Counter, deque
 from pathlib import Path
 
 from rsal.cliutil import positive
+from rsal.procs import die_with_parent
 from rsal.transport import DEFAULT_ENDPOINT, TransportArgs, port_free
 
 __all__ = ["register", "run_demo"]
@@ -57,7 +58,9 @@ def run_demo(args: argparse.Namespace) -> int:
     t_start = time.monotonic()
     cmd = [sys.executable, "-m", "rsal.cli", "sim", str(world), "--listen", endpoint, "--speedup", str(args.speedup)]
     print(f"[demo] starting the simulator: {world.name} at {args.speedup:g}x real time on {endpoint}", flush=True)
-    sim = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    sim = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True, **die_with_parent()
+    )
     threading.Thread(target=_relay, args=(sim,), name="sim-output", daemon=True).start()
     stopping: list[int] = []
     old = {s: signal.signal(s, lambda n, f: stopping.append(n)) for s in (signal.SIGINT, signal.SIGTERM)}

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rsal.cliutil import positive
+from rsal.procs import die_with_parent
 
 from .scenario import Application, Scenario, ScenarioError, check_classes, load_scenario, parse_set
 
@@ -85,6 +86,7 @@ class Child:
             start_new_session=True,
             text=True,
             errors="replace",
+            **die_with_parent(),
         )
         self.reported = False
         self._readers = [

@@ -169,8 +169,16 @@ def run_case(mode: str, rate: float, seconds: float) -> dict:
         )
         cfg_file.close()
         args = [sys.executable, "-m", "rsal.cli", "serve", cfg_file.name, "--listen", f"tcp/127.0.0.1:{port}"]
+    from rsal.procs import die_with_parent
+
     pub = subprocess.Popen(
-        args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT, env=env, start_new_session=True
+        args,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        cwd=ROOT,
+        env=env,
+        start_new_session=True,
+        **die_with_parent(),
     )
     try:
         # wait until the publisher listens, so the subscriber's connect succeeds

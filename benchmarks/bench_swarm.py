@@ -193,12 +193,15 @@ def run(args) -> None:
         with tempfile.TemporaryDirectory() as tmp:
             world = write_crowd_world(Path(tmp) / f"crowd{n}.world", n, seed=args.seed)
             ep = f"tcp/127.0.0.1:{_free_port()}"
+            from rsal.procs import die_with_parent
+
             sim = subprocess.Popen(
                 [sys.executable, "-m", "rsal.cli", "sim", str(world), "--listen", ep, "--no-map"],
                 cwd=ROOT,
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL,
                 start_new_session=True,
+                **die_with_parent(),
             )
             try:
                 r = _run_host(n, "robots", ep, args, sim.pid)

@@ -71,12 +71,15 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         world = write_crowd_world(Path(tmp) / "crowd.world", args.robots, seed=args.seed)
         ep = f"tcp/127.0.0.1:{_free_port()}"
+        from rsal.procs import die_with_parent
+
         sim = subprocess.Popen(
             [sys.executable, "-m", "rsal.cli", "sim", str(world), "--listen", ep],
             cwd=ROOT,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.STDOUT,
             start_new_session=True,
+            **die_with_parent(),
         )
         try:
             session = open_session(TransportArgs(connect=[ep]))

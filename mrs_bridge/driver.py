@@ -11,9 +11,12 @@ or on another server. The server owns all Zenoh entities; a driver only implemen
 - ``on_cmd(addr, msg)`` for a decoded ``cmd`` map; raise :class:`~rsal.msgs.MessageError` (or
   :class:`OutOfRange`) to reject it: the server logs a rate-limited warning and nothing changes;
 - ``on_rpc(addr, op, args)`` returning a result map; raise ``MessageError``/``OutOfRange``/
-  :class:`~rsal.msgs.RpcError` for typed error replies;
+  :class:`~rsal.msgs.RpcError` for typed error replies, or return a :class:`Deferred` for a long
+  operation that the server continues in slices and answers when done;
 - ``geometry(addr)`` and ``ops(addr)`` for ``rpc/describe``; ``shutdown()`` to stop motors;
 - ``set_online(flag)`` withdraws/re-declares the devices' tokens while hardware is silent;
+- ``depends_on`` lists drivers of the same server this one needs (the ``sim`` drivers need the
+  ``simulation`` driver's world): when one of them fails, this driver's devices are withdrawn too;
 - ``send(addr, msg)`` commands a required device; ``request(addr, op, args)`` calls its rpc without
   blocking and the answer arrives in ``on_reply(addr, op, result, error)``.
 
@@ -33,7 +36,7 @@ from .config import DriverConfig
 if TYPE_CHECKING:
     from .server import DeviceServer
 
-__all__ = ["Driver", "OutOfRange", "DRIVERS", "register"]
+__all__ = ["Driver", "Deferred", "OutOfRange", "DRIVERS", "register"]
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +59,16 @@ class OutOfRange(MessageError):
     """A well-formed value outside what the device accepts."""
 
 
+class Deferred:
+    """What ``on_rpc`` returns for an operation too long for one go (e.g. ``step`` of 10,000
+    simulation steps): the server calls ``step()`` once per scheduler pass, between the other
+    requests and the drivers' updates, until it returns the result map; then it replies. ``step``
+    may raise the usual typed errors. Keep each call short (milliseconds)."""
+
+    def __init__(self, step):
+        self.step = step
+
+
 class Driver:
     driver_name: ClassVar[str] = "driver"
     default_rate: ClassVar[float] = 10.0
@@ -73,6 +86,9 @@ class Driver:
         self.server = server
         self.rate = float(cfg.rate or self.default_rate)
         self.log = logging.getLogger(f"mrs_bridge.{self.driver_name}")
+        #: drivers in this server this one cannot work without: when one fails, this one fails too
+        #: (its devices are withdrawn)
+        self.depends_on: list[Driver] = []
         for a in cfg.provides:
             if "*" not in self.interfaces and a.interface not in self.interfaces:
                 raise MessageError(
@@ -122,6 +138,11 @@ class Driver:
         """Hardware drivers: withdraw every provided device's token while the device does not
         answer (``False``) and declare them again when it does (``True``)."""
         self.server.set_online(self, online)
+
+    def warn(self, key: str, text: str, level: int = logging.WARNING) -> None:
+        """Log ``text`` rate-limited per ``key`` (at most once per 5 s, with a count of the others):
+        use it for every message that input from the network can cause."""
+        self.server._warn(f"{self.cfg.where}:{key}", text, level)
 
     def publish(self, addr: DeviceAddr, msg) -> None:
         self.server.publish(addr, msg)

@@ -26,6 +26,7 @@ that names the missing devices.
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
 import queue
@@ -51,13 +52,57 @@ from rsal.msgs import (
 )
 
 from .config import ConfigError, DriverConfig, ServerConfig
-from .driver import DRIVERS, Driver, OutOfRange
+from .driver import DRIVERS, Deferred, Driver, OutOfRange
 
 __all__ = ["DeviceServer", "ServerError"]
 
 log = logging.getLogger(__name__)
 
 WARN_INTERVAL = 5.0  # s between repeated warnings about the same key
+WARN_KEYS = 4096  # rate-limiter entries kept; older ones are forgotten beyond this
+MAX_PAYLOAD = 64 * 1024  # bytes: larger cmd/rpc payloads are refused before decoding
+MAX_INPUT = 4 * 1024 * 1024  # bytes: larger data/event samples from required devices are dropped
+INBOX_MAX = 1024  # items waiting for the scheduler; beyond it cmds are dropped and rpcs answered busy
+
+
+class _Inbox:
+    """The scheduler's queue: bounded for input from the network (:meth:`offer` refuses when
+    ``maxsize`` items wait), unbounded for the server's own items (``force``: replies to its own
+    requests, liveliness changes, wake-ups), which are few by construction."""
+
+    def __init__(self, maxsize: int):
+        self.maxsize = maxsize
+        self._q: collections.deque = collections.deque()
+        self._cv = threading.Condition(threading.Lock())
+
+    def offer(self, item, force: bool = False) -> bool:
+        with self._cv:
+            if not force and len(self._q) >= self.maxsize:
+                return False
+            self._q.append(item)
+            self._cv.notify()
+            return True
+
+    def put(self, item) -> None:
+        self.offer(item, force=True)
+
+    def empty(self) -> bool:
+        return not self._q
+
+    def qsize(self) -> int:
+        return len(self._q)
+
+    def get_nowait(self):
+        with self._cv:
+            if not self._q:
+                raise queue.Empty
+            return self._q.popleft()
+
+    def get(self, timeout: float):
+        with self._cv:
+            if not self._q and not self._cv.wait_for(lambda: self._q, timeout):
+                raise queue.Empty
+            return self._q.popleft()
 
 
 class ServerError(RuntimeError):
@@ -94,6 +139,7 @@ class _Slot:
     next_due: float = 0.0
     subs: list[Any] = field(default_factory=list)  # liveliness and input subscribers
     announced: bool = False  # the devices' tokens are declared (first update done)
+    reason: str = ""  # why the devices are not available (failed, withdrawn)
 
     @property
     def name(self) -> str:
@@ -115,14 +161,16 @@ class DeviceServer:
         self.require_timeout = float(require_timeout)
         self.registry = drivers if drivers is not None else DRIVERS
         self.shared: dict[str, Any] = shared if shared is not None else {}
-        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self.inbox = _Inbox(INBOX_MAX)
         self.slots: list[_Slot] = []
         self.devices: dict[DeviceAddr, _Device] = {}
         self._stop = threading.Event()
         self._warned: dict[str, tuple[float, int]] = {}
-        self.stats = {"cmd": 0, "rpc": 0, "rejected": 0, "published": 0}
+        self.stats = {"cmd": 0, "rpc": 0, "rejected": 0, "published": 0, "too_large": 0, "dropped": 0, "busy": 0}
+        self._reported = (0, 0, 0)  # too_large, dropped, busy already warned about
         self._failed = 0  # drivers that failed (the loop checks whether any still works)
         self._pub_cache: dict[int, tuple[DeviceAddr, Any]] = {}  # id(addr) -> (addr, publisher's put)
+        self._pending: list[tuple] = []  # long rpcs in progress: (device, op, reply key, query, Deferred)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -200,7 +248,7 @@ class DeviceServer:
             if not self.inbox.empty():
                 item = self.inbox.get_nowait()
             else:
-                timeout = self._next_wakeup(now)
+                timeout = 0.0 if self._pending else self._next_wakeup(now)
                 if timeout > 0:
                     try:
                         item = self.inbox.get(timeout=timeout)
@@ -217,6 +265,9 @@ class DeviceServer:
                 except queue.Empty:
                     item = None
             self._run_due(time.monotonic())
+            if self._pending:
+                self._run_pending()
+            self._report_overload()
             if self._failed and not any(s.state in ("running", "waiting") for s in self.slots):
                 raise ServerError("no driver is working any more; see the errors above")
 
@@ -285,6 +336,37 @@ class DeviceServer:
                 return self._call(slot, fn, *args)
         return None
 
+    def hosted(self, cls: type) -> list[Driver]:
+        """Every driver of class ``cls`` this server hosts, whatever its state."""
+        return [s.driver for s in self.slots if isinstance(s.driver, cls)]
+
+    def _slot_of(self, driver: Driver) -> _Slot | None:
+        return next((s for s in self.slots if s.driver is driver), None)
+
+    def withdraw(self, driver: Driver, reason: str) -> None:
+        """Take a running driver's devices off the fabric while the server runs on (e.g. a robot
+        removed from the simulation): ``shutdown()``, tokens withdrawn, no more updates, and every
+        rpc answered ``unavailable`` with ``reason``. Scheduler thread only."""
+        slot = self._slot_of(driver)
+        if slot is None or slot.state != "running":
+            return
+        self._call(slot, driver.shutdown, fail=False)
+        slot.state = "stopped"
+        slot.reason = reason
+        self.set_online(driver, False)
+        log.info("%s: devices withdrawn: %s", slot.name, reason)
+
+    def reinstate(self, driver: Driver) -> None:
+        """Undo :meth:`withdraw`: the devices serve and their tokens return. Scheduler thread only."""
+        slot = self._slot_of(driver)
+        if slot is None or slot.state != "stopped" or not slot.reason:
+            return
+        slot.state = "running"
+        slot.reason = ""
+        slot.next_due = time.monotonic()
+        self.set_online(driver, True)
+        log.info("%s: devices back", slot.name)
+
     def set_online(self, driver: Driver, online: bool) -> None:
         """Withdraw (``online`` false) or re-declare the liveliness tokens of ``driver``'s devices,
         for hardware that stops answering and comes back (clients see the devices lost, then found).
@@ -312,7 +394,10 @@ class DeviceServer:
                 slot.driver.shutdown()
             except Exception as e:
                 log.warning("%s: shutdown after failure: %s", slot.name, e)
+        if slot.state == "failed":
+            return
         slot.state = "failed"
+        slot.reason = "its driver failed"
         self._failed += 1
         self._pub_cache.clear()
         for a in slot.driver.cfg.provides:
@@ -325,6 +410,12 @@ class DeviceServer:
             except Exception:
                 pass
         slot.subs.clear()
+        # Drivers that depend on this one in this process (e.g. the sim drivers on the simulation's
+        # world) cannot work without it: they fail too, so no token outlives what it stands for.
+        for other in self.slots:
+            if other.state in ("running", "waiting", "stopped") and slot.driver in other.driver.depends_on:
+                log.error("%s: withdrawn because %s failed", other.name, slot.name)
+                self._fail(other, None)
 
     def _setup(self, slot: _Slot) -> None:
         drv = slot.driver
@@ -334,8 +425,8 @@ class DeviceServer:
                 slot.subs.append(
                     self.session.declare_subscriber(
                         key,
-                        lambda s, slot=slot, r=r, ch=channel: self.inbox.put(
-                            ("input", slot, r, ch, s.payload.to_bytes())
+                        lambda s, slot=slot, r=r, ch=channel: self._on_sample(
+                            ("input", slot, r, ch), s.payload, MAX_INPUT
                         ),
                     )
                 )
@@ -351,17 +442,18 @@ class DeviceServer:
         s = self.session
         dev = _Device(addr, slot)
         dev.pub = s.declare_publisher(keys.data_key(addr))
+        # Reliable, but never blocking: the scheduler publishes, and a peer that reads slowly must
+        # not hold it up (with BLOCK, a full link to one slow subscriber stalls the whole server).
+        # An event to a congested peer is dropped for that peer only.
         dev.event_pub = s.declare_publisher(
             keys.event_key(addr),
             reliability=zenoh.Reliability.RELIABLE,
-            congestion_control=zenoh.CongestionControl.BLOCK,
+            congestion_control=zenoh.CongestionControl.DROP,
         )
         dev.cmd_sub = s.declare_subscriber(
-            keys.cmd_key(addr), lambda smp, a=addr: self.inbox.put(("cmd", a, smp.payload.to_bytes()))
+            keys.cmd_key(addr), lambda smp, a=addr: self._on_sample(("cmd", a), smp.payload, MAX_PAYLOAD)
         )
-        dev.rpc_q = s.declare_queryable(
-            f"{keys.PREFIX}/{addr.path}/rpc/*", lambda q, a=addr: self.inbox.put(("rpc", a, q))
-        )
+        dev.rpc_q = s.declare_queryable(f"{keys.PREFIX}/{addr.path}/rpc/*", lambda q, a=addr: self._on_query(a, q))
         self.devices[addr] = dev
         self._pub_cache.clear()
 
@@ -376,6 +468,46 @@ class DeviceServer:
                 dev.token = self.session.liveliness().declare_token(keys.device_key(dev.addr))
 
     # ------------------------------------------------------------------ inbound
+    # The three callbacks below run on Zenoh's threads: they only check sizes, count and queue.
+    def _offer(self, item: tuple) -> bool:
+        if self.inbox.offer(item):
+            return True
+        self.stats["dropped"] += 1
+        return False
+
+    def _on_sample(self, head: tuple, payload, limit: int) -> None:
+        if len(payload) > limit:  # refused before it is copied or decoded
+            self.stats["too_large"] += 1
+            return
+        self._offer((*head, payload.to_bytes()))
+
+    def _on_query(self, addr: DeviceAddr, query) -> None:
+        if self._offer(("rpc", addr, query)):
+            return
+        # Full: the one Zenoh call made on a callback thread; an error reply does not wait.
+        self.stats["busy"] += 1
+        try:
+            query.reply_err(error_reply(ErrorCode.BUSY, f"{addr}: the server is busy; try again later"))
+        except Exception:
+            pass
+        finally:
+            try:
+                query.drop()
+            except Exception:
+                pass
+
+    def _report_overload(self) -> None:
+        now = (self.stats["too_large"], self.stats["dropped"], self.stats["busy"])
+        if now != self._reported:
+            d = [a - b for a, b in zip(now, self._reported, strict=True)]
+            self._warn(
+                "overload",
+                f"refused {d[0]} sample(s) over the size limit, dropped {d[1]} item(s) and answered {d[2]} "
+                f"rpc(s) busy because the inbox ({INBOX_MAX} items) was full",
+            )
+            if self._warned["overload"][1] == 0:  # logged now: count from here
+                self._reported = now
+
     def _handle(self, item: tuple) -> None:
         kind = item[0]
         if kind == "cmd":
@@ -410,7 +542,10 @@ class DeviceServer:
                 if not slot.missing:
                     self._setup(slot)
             elif slot.state == "running" and not alive:
-                log.warning("%s: required device %s was lost; waiting for it to return", slot.name, addr)
+                self._warn(
+                    f"lost:{slot.name}:{addr}",
+                    f"{slot.name}: required device {addr} was lost; waiting for it to return",
+                )
 
     def _on_cmd(self, addr: DeviceAddr, payload: bytes) -> None:
         self.stats["cmd"] += 1
@@ -429,49 +564,101 @@ class DeviceServer:
 
     def _on_rpc(self, addr: DeviceAddr, query) -> None:
         self.stats["rpc"] += 1
+        keep = False
         try:
             qkey = str(query.key_expr)
             op = qkey.rsplit("/", 1)[-1]
             dev = self.devices.get(addr)
-            reply_key = keys.rpc_key(addr, op) if keys._NAME.match(op) else keys.rpc_key(addr, "describe")
-            if op in ("*", "**") or not keys._NAME.match(op):
+            if op in ("*", "**"):
                 op = "describe"  # a wildcard query (e.g. from `rsal ls`) gets the description
-            if dev is None or dev.slot.state != "running":
-                query.reply_err(error_reply(ErrorCode.UNAVAILABLE, f"{addr} is not available"))
+            elif not keys._NAME.match(op):
+                self.stats["rejected"] += 1
+                query.reply_err(
+                    error_reply(
+                        ErrorCode.BAD_REQUEST,
+                        f"{addr}: {op[:40]!r} is not an operation name (letters, digits, '_', '-', '.')",
+                    )
+                )
                 return
-            drv = dev.slot.driver
-            try:
-                args = decode_map(query.payload.to_bytes() if query.payload is not None else b"")
-                if op == "describe":
-                    result = self.describe(addr).to_dict()
-                else:
-                    if op not in drv.ops(addr):
-                        raise RpcError(
-                            ErrorCode.UNKNOWN_OP,
-                            f"{addr} has no operation {op!r}; it has: {', '.join(drv.all_ops(addr))}",
-                        )
-                    result = drv.on_rpc(addr, op, args) or {}
-                query.reply(reply_key, ok_reply(**result))
-            except OutOfRange as e:
-                self.stats["rejected"] += 1
-                query.reply_err(error_reply(ErrorCode.OUT_OF_RANGE, str(e)))
-            except MessageError as e:
-                self.stats["rejected"] += 1
-                query.reply_err(error_reply(ErrorCode.BAD_REQUEST, str(e)))
-            except RpcError as e:
-                self.stats["rejected"] += 1
-                query.reply_err(error_reply(e.code, e.message))
-            except Exception as e:
-                log.error("%s: rpc %s failed: %s: %s", dev.slot.name, op, type(e).__name__, e)
-                log.debug("rpc failure", exc_info=True)
-                query.reply_err(error_reply(ErrorCode.INTERNAL, f"{type(e).__name__}: {e}"))
+            reply_key = keys.rpc_key(addr, op)
+            if dev is None or dev.slot.state != "running":
+                why = f": {dev.slot.reason}" if dev is not None and dev.slot.reason else ""
+                query.reply_err(error_reply(ErrorCode.UNAVAILABLE, f"{addr} is not available{why}"))
+                return
+            size = len(query.payload) if query.payload is not None else 0
+            if size > MAX_PAYLOAD:
+                self.stats["too_large"] += 1
+                self._reported = (self._reported[0] + 1, *self._reported[1:])  # answered: no warning
+                query.reply_err(
+                    error_reply(
+                        ErrorCode.TOO_LARGE, f"{addr}: request of {size} bytes is over the limit of {MAX_PAYLOAD}"
+                    )
+                )
+                return
+            keep = self._answer(dev, op, reply_key, query, lambda: self._rpc_result(dev, op, query))
         except Exception as e:  # never let a reply problem (e.g. a closed query) stop the server
             self._warn(f"rpc:{addr}", f"could not answer an rpc on {addr}: {type(e).__name__}: {e}")
         finally:
+            if not keep:
+                try:
+                    query.drop()
+                except Exception:
+                    pass
+
+    def _rpc_result(self, dev: _Device, op: str, query):
+        addr, drv = dev.addr, dev.slot.driver
+        args = decode_map(query.payload.to_bytes() if query.payload is not None else b"")
+        if op == "describe":
+            return self.describe(addr).to_dict()
+        if op not in drv.ops(addr):
+            raise RpcError(
+                ErrorCode.UNKNOWN_OP, f"{addr} has no operation {op!r}; it has: {', '.join(drv.all_ops(addr))}"
+            )
+        return drv.on_rpc(addr, op, args) or {}
+
+    def _answer(self, dev: _Device, op: str, reply_key: str, query, fn) -> bool:
+        """Reply to ``query`` with ``fn()``'s result or its typed error. A :class:`Deferred` result
+        is kept and continued on later scheduler passes: returns True then (the query stays open)."""
+        try:
+            result = fn()
+            if isinstance(result, Deferred):
+                self._pending.append((dev, op, reply_key, query, result))
+                return True
+            query.reply(reply_key, ok_reply(**result))
+        except OutOfRange as e:
+            self.stats["rejected"] += 1
+            query.reply_err(error_reply(ErrorCode.OUT_OF_RANGE, str(e)))
+        except MessageError as e:
+            self.stats["rejected"] += 1
+            query.reply_err(error_reply(ErrorCode.BAD_REQUEST, str(e)))
+        except RpcError as e:
+            self.stats["rejected"] += 1
+            query.reply_err(error_reply(e.code, e.message))
+        except Exception as e:
+            self._warn(
+                f"internal:{dev.addr}", f"{dev.slot.name}: rpc {op} failed: {type(e).__name__}: {e}", logging.ERROR
+            )
+            log.debug("rpc failure", exc_info=True)
+            query.reply_err(error_reply(ErrorCode.INTERNAL, f"{type(e).__name__}: {e}"))
+        return False
+
+    def _run_pending(self) -> None:
+        """One slice of every long operation in progress (see :class:`~mrs_bridge.driver.Deferred`)."""
+        pending, self._pending = self._pending, []
+        for dev, op, reply_key, query, deferred in pending:
+            keep = False
             try:
-                query.drop()
-            except Exception:
-                pass
+                if dev.slot.state != "running":
+                    query.reply_err(error_reply(ErrorCode.UNAVAILABLE, f"{dev.addr} is not available"))
+                else:
+                    keep = self._answer(dev, op, reply_key, query, lambda d=deferred: _continue(d))
+            except Exception as e:
+                self._warn(f"rpc:{dev.addr}", f"could not answer an rpc on {dev.addr}: {type(e).__name__}: {e}")
+            if not keep:
+                try:
+                    query.drop()
+                except Exception:
+                    pass
 
     def describe(self, addr: DeviceAddr) -> Describe:
         dev = self.devices[addr]
@@ -529,15 +716,25 @@ class DeviceServer:
             return
         dev.event_pub.put(encode(msg))
 
-    def _warn(self, key: str, text: str) -> None:
+    def _warn(self, key: str, text: str, level: int = logging.WARNING) -> None:
+        """Log ``text`` at most once per :data:`WARN_INTERVAL` per ``key``, with a count of the
+        suppressed ones. Every log line that outside input can cause goes through here."""
         now = time.monotonic()
         last, suppressed = self._warned.get(key, (-math.inf, 0))
         if now - last >= WARN_INTERVAL:
             extra = f" ({suppressed} more like it suppressed)" if suppressed else ""
-            log.warning("%s%s", text, extra)
+            log.log(level, "%s%s", text, extra)
+            if len(self._warned) >= WARN_KEYS and key not in self._warned:
+                self._warned = {k: v for k, v in self._warned.items() if now - v[0] < WARN_INTERVAL}
             self._warned[key] = (now, 0)
         else:
             self._warned[key] = (last, suppressed + 1)
+
+
+def _continue(deferred: Deferred):
+    """One slice of a long operation: its result map, or the :class:`Deferred` itself if not done."""
+    result = deferred.step()
+    return deferred if result is None else result
 
 
 def make_driver_config(name: str, provides: list[str], node: str, **params) -> DriverConfig:

@@ -78,6 +78,8 @@ class ErrorCode(StrEnum):
     NOT_FOUND = "not_found"  # a named thing (model, goal) does not exist
     UNAVAILABLE = "unavailable"  # the device cannot do it now (required device lost, busy)
     INTERNAL = "internal"  # the driver failed; see the server log
+    TOO_LARGE = "too_large"  # the request payload is over the server's limit; not decoded
+    BUSY = "busy"  # the server's inbox is full; try again later
     TIMEOUT = "timeout"  # (client side) no reply within the deadline
 
 

@@ -6,7 +6,7 @@ rangers, blobfinders and grippers computed for all robots in one vectorised pass
 fixed-step clock, and loaders for Stage ``.world`` files and a YAML world format.
 """
 
-from .errors import ModelError, SimulatorError, WorldFileError
+from .errors import ModelError, OutOfWorld, SimulatorError, WorldFileError
 from .loader import load_world
 from .spec import (
     BlobfinderSpec,
@@ -23,6 +23,7 @@ __all__ = [
     "FloorplanSpec",
     "GripperSpec",
     "ModelError",
+    "OutOfWorld",
     "ModelSpec",
     "RangerSensorSpec",
     "RangerSpec",

@@ -5,6 +5,7 @@
     SimulatorError            anything the simulator refuses
     ├── WorldFileError        a world file (or a file it includes) is malformed: names file:line
     └── ModelError            an operation names a model that does not exist or cannot do it
+        └── OutOfWorld        a pose outside the world's bounds
 
 Every message is one line that names the place and says how to fix it; command-line tools print
 ``str(error)`` and exit 1, never a traceback.
@@ -16,7 +17,7 @@ import logging
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-__all__ = ["SimulatorError", "WorldFileError", "ModelError", "as_world_file_errors"]
+__all__ = ["SimulatorError", "WorldFileError", "ModelError", "OutOfWorld", "as_world_file_errors"]
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +39,10 @@ class WorldFileError(SimulatorError):
 
 class ModelError(SimulatorError):
     """An operation on a model that does not exist or does not support it."""
+
+
+class OutOfWorld(ModelError):
+    """A pose outside the world's bounds (the floorplan and initial poses plus a margin)."""
 
 
 @contextmanager

@@ -260,7 +260,12 @@ def segment_min(values: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> n
 
 
 class CircleIndex:
-    """Circles (x, y, r, owner id) bucketed in a uniform hash grid for :func:`cast_fans`."""
+    """Circles (x, y, r, owner id) bucketed in a uniform hash grid for :func:`cast_fans`.
+
+    ``cell`` is the preferred cell size (m); it grows when the circles spread so far apart that
+    the grid would need more than :attr:`MAX_CELLS` cells."""
+
+    MAX_CELLS = 1 << 20
 
     def __init__(self, x, y, r, owner, cell: float = 2.0):
         self.x = np.ascontiguousarray(x, dtype=np.float64)
@@ -276,6 +281,10 @@ class CircleIndex:
             self.items = np.zeros(0, dtype=np.int64)
             return
         rmax = float(self.r.max())
+        # The grid covers the circles' bounding box; its cells grow so that there are never more
+        # than MAX_CELLS of them: memory and build time stay bounded however far apart bodies are.
+        span = max(float(self.x.max() - self.x.min()), float(self.y.max() - self.y.min())) + 2 * rmax
+        self.cell = max(self.cell, span / math.sqrt(self.MAX_CELLS) * 1.01)
         self.x0 = float(self.x.min()) - rmax - self.cell
         self.y0 = float(self.y.min()) - rmax - self.cell
         self.w = int((self.x.max() + rmax - self.x0) // self.cell) + 2

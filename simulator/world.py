@@ -34,7 +34,7 @@ import numpy as np
 import pymunk
 import pymunk.batch
 
-from .errors import ModelError, SimulatorError
+from .errors import ModelError, OutOfWorld, SimulatorError
 from .gridmap import GridMap
 from .raycast import CircleIndex, cast_fans, segment_min
 from .spec import BlobfinderSpec, GripperSpec, ModelSpec, RangerSpec, WorldSpec
@@ -45,6 +45,7 @@ log = logging.getLogger(__name__)
 
 SONAR_SUBRAYS = 5  # rays spread across a sonar cone; the transducer reads their minimum
 _CIRCLE_CELL = 2.0  # m, hash-grid cell of the dynamic-body index
+WORLD_MARGIN = 10.0  # m around the floorplan and the models' initial poses that set_pose accepts
 _F = pymunk.batch.BodyFields
 # Motor pass: per body [angle, vx, vy, w, fx, fy, torque] (pymunk's batch layout: fields in flag order).
 _MOTOR_GET = _F.BODY_ID | _F.ANGLE | _F.VELOCITY | _F.ANGULAR_VELOCITY | _F.FORCE | _F.TORQUE
@@ -146,7 +147,26 @@ class World:
         if spec.floorplan is not None:
             fp = spec.floorplan
             self.grid = GridMap.from_image(fp.bitmap, fp.resolution, fp.origin, size=fp.size, threshold=fp.threshold)
+        self.bounds = self._bounds()
         self._build()
+
+    def _bounds(self) -> tuple[float, float, float, float]:
+        """``(xmin, xmax, ymin, ymax)``: the floorplan and every model's initial pose, grown by
+        :data:`WORLD_MARGIN`. Poses outside are refused, so no cost grows with a far coordinate."""
+        xs = [m.pose[0] for m in self.spec.models]
+        ys = [m.pose[1] for m in self.spec.models]
+        if self.grid is not None:
+            x0, x1, y0, y1 = self.grid.extent
+            xs += [x0, x1]
+            ys += [y0, y1]
+        if not xs:
+            xs = ys = [0.0]
+        return (min(xs) - WORLD_MARGIN, max(xs) + WORLD_MARGIN, min(ys) - WORLD_MARGIN, max(ys) + WORLD_MARGIN)
+
+    def in_bounds(self, x: float, y: float) -> bool:
+        """Whether ``(x, y)`` lies inside :attr:`bounds` (where :meth:`set_pose` may put a model)."""
+        x0, x1, y0, y1 = self.bounds
+        return x0 <= x <= x1 and y0 <= y <= y1
 
     # ------------------------------------------------------------------ construction
     def _build(self) -> None:
@@ -289,6 +309,12 @@ class World:
         if not all(math.isfinite(v) for v in vals):
             raise ModelError(f"set_pose({name!r}): pose {vals!r} must be finite numbers")
         m = self._model(name)
+        if not self.in_bounds(vals[0], vals[1]):
+            x0, x1, y0, y1 = self.bounds
+            raise OutOfWorld(
+                f"set_pose({name!r}): ({vals[0]:g}, {vals[1]:g}) is outside the world; "
+                f"x must be in [{x0:g}, {x1:g}] and y in [{y0:g}, {y1:g}] m"
+            )
         if m.carried_by is not None:
             self._release(m)
         b = m.body

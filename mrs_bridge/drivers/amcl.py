@@ -142,7 +142,7 @@ class AmclDriver(Driver):
 
     def on_reply(self, addr, op, result, error) -> None:
         if error is not None:
-            self.log.warning("%s: %s rpc/%s failed (%s); retrying", self.cfg.where, addr, op, error)
+            self.warn(f"retry:{op}", f"{self.cfg.where}: {addr} rpc/{op} failed ({error}); retrying")
             self.request(addr, op, timeout=30.0 if op == "get" else 5.0)
             return
         if op == "get" and addr.without_key() == self.map_addr.without_key():

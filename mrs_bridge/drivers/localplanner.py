@@ -83,7 +83,7 @@ class LocalPlannerDriver(Driver):
     def on_reply(self, addr, op, result, error) -> None:
         a = addr.without_key()
         if error is not None:
-            self.log.warning("%s: %s rpc/%s failed (%s); retrying", self.cfg.where, a, op, error)
+            self.warn(f"retry:{op}", f"{self.cfg.where}: {a} rpc/{op} failed ({error}); retrying")
             self.request(a, op)
             return
         g = result.get("geometry", {}) or {}

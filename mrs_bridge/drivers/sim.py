@@ -39,11 +39,13 @@ from rsal.msgs import (
 )
 
 from ..config import ConfigError
-from ..driver import Driver, OutOfRange, register
+from ..driver import Deferred, Driver, OutOfRange, register
 
 __all__ = ["SimulationDriver", "SimDriver"]
 
 WORLD_KEY = "simulator.world"
+STEP_SLICE = 0.01  # s of stepping per scheduler pass for rpc/step
+ODOM_LIMIT = 1e5  # m (and rad): the largest odometry value set_odom accepts
 
 
 @register("simulation")
@@ -83,6 +85,12 @@ class SimulationDriver(Driver):
         self._wall0 = time.monotonic()
         self._sim0 = world.time
 
+    def setup(self) -> None:
+        # The sim drivers of this world cannot work without it: they fail when this driver fails.
+        for d in self.server.hosted(SimDriver):
+            if d.world is self.world and self not in d.depends_on:
+                d.depends_on.append(self)
+
     def publish_rate(self, addr) -> float:
         return 10.0
 
@@ -108,7 +116,7 @@ class SimulationDriver(Driver):
         }
 
     def on_rpc(self, addr, op, args):
-        from simulator import ModelError
+        from simulator import ModelError, OutOfWorld
 
         w = self.world
         try:
@@ -125,21 +133,43 @@ class SimulationDriver(Driver):
                 w.pause(get_bool(args, "paused", True))
                 return {"paused": w.paused}
             if op == "step":
-                n = get_int(args, "n", 1, lo=1, hi=10000)
-                for _ in range(n):
-                    w.step()
-                    for d in self.server.drivers_of(SimDriver):
-                        self.server.call_driver(d, d.on_step, w)
-                return {"t": w.time, "steps": w.steps}
+                return self._step(get_int(args, "n", 1, lo=1, hi=10000))
             if op == "reset":
                 w.reset()
+                for d in self.server.hosted(SimDriver):  # removed robots come back with the reset
+                    if d.world is w and d.model in w.model_names:
+                        self.server.reinstate(d)
                 return {"t": w.time}
             if op == "remove_model":
-                w.remove_model(get_str(args, "name"))
+                name = get_str(args, "name")
+                w.remove_model(name)
+                for d in self.server.hosted(SimDriver):  # its devices go with it
+                    if d.world is w and d.model == name:
+                        self.server.withdraw(d, f"model {name!r} was removed from the simulation")
                 return {}
+        except OutOfWorld as e:
+            raise OutOfRange(str(e)) from None
         except ModelError as e:
             raise RpcError(ErrorCode.NOT_FOUND, str(e)) from None
         return super().on_rpc(addr, op, args)
+
+    def _step(self, n: int) -> Deferred:
+        """``n`` steps in slices of at most STEP_SLICE seconds, between the server's other work."""
+        left = [n]
+
+        def work():
+            w = self.world
+            t_end = time.perf_counter() + STEP_SLICE
+            while left[0] > 0:
+                w.step()
+                left[0] -= 1
+                for d in self.server.drivers_of(SimDriver):
+                    self.server.call_driver(d, d.on_step, w)
+                if time.perf_counter() >= t_end:
+                    break
+            return None if left[0] else {"t": w.time, "steps": w.steps}
+
+        return Deferred(work)
 
 
 def _battery_volts(percent: float) -> float:
@@ -318,6 +348,8 @@ class SimDriver(Driver):
         if addr.interface == "position2d":
             if op == "set_odom":
                 x, y, a = get_vec(args, "pose", 3)
+                if max(abs(x), abs(y), abs(a)) > ODOM_LIMIT:
+                    raise OutOfRange(f"set_odom pose ({x:g}, {y:g}, {a:g}): each value must be within +-{ODOM_LIMIT:g}")
                 w.set_odometry(self.model, x, y, a)
                 return {"pose": [x, y, a]}
             if op == "motor_power":

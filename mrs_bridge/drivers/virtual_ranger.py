@@ -33,6 +33,7 @@ real device's geometry, so clients place its beams the same way (``rpc/describe`
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 
@@ -197,7 +198,11 @@ class VirtualRanger(Driver):
             if isinstance(robots, list):
                 names = [n for n in robots if isinstance(n, str) and n not in self.exclude]
                 if not self._sim_up or names != self.names:
-                    self.log.info("%s: virtual robots of %s: %s", self.cfg.where, self.sim, ", ".join(names) or "none")
+                    self.warn(
+                        "models",
+                        f"{self.cfg.where}: virtual robots of {self.sim}: {', '.join(names) or 'none'}",
+                        logging.INFO,
+                    )
                 self._sim_up = True
                 self.names = names
                 for gone in set(self.virtual) - set(self.names):

@@ -31,6 +31,7 @@ from the output device's size), ``max_radius`` and ``dist_penalty`` (corridor-ce
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 
@@ -124,7 +125,7 @@ class WavefrontDriver(Driver):
                 self.robot_radius = self.robot_radius or 0.25
                 self._build()
                 return
-            self.log.warning("%s: %s rpc/%s failed (%s); retrying", self.cfg.where, addr, op, error)
+            self.warn(f"retry:{op}", f"{self.cfg.where}: {addr} rpc/{op} failed ({error}); retrying")
             self.request(addr, op, timeout=30.0)
             return
         if op == "get":
@@ -239,7 +240,7 @@ class WavefrontDriver(Driver):
         self._open = 0
         for a in self.cfg.provides:
             self.event(a, {"event": status, "goal_id": goal_id, "message": message})
-        self.log.info("%s: goal %d %s%s", self.cfg.where, goal_id, status, f": {message}" if message else "")
+        self.warn("goal", f"{self.cfg.where}: goal {goal_id} {status}{': ' + message if message else ''}", logging.INFO)
 
     def _publish(self, now: float) -> None:
         ex = self.exec

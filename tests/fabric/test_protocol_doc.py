@@ -227,10 +227,12 @@ def test_a_removed_robot_answers_unavailable_until_reset(session):
         for key in ("rsal/r0/laser/0/rpc/get", "rsal/r0/position2d/0/rpc/stop", "rsal/r0/gripper/0/rpc/open"):
             is_err, reply = call(session, key)
             assert is_err and reply["code"] == "unavailable" and "removed" in reply["message"], key
-        # its devices stay declared (docs/protocol.md: "devices stay declared but publish nothing")
+        # its devices are withdrawn (docs/protocol.md: "their tokens go (clients see them lost)")
         alive = {str(r.ok.key_expr) for r in session.liveliness().get("rsal/r0/**", timeout=1.0) if r.ok}
-        assert "rsal/r0/laser/0" in alive
+        assert alive == set()
     finally:
         assert call(session, f"{sim}/reset")[0] is False
     assert call(session, f"{sim}/models")[1]["robots"] == ["r0"]
     assert call(session, "rsal/r0/position2d/0/rpc/stop") == (False, {"ok": True})
+    alive = {str(r.ok.key_expr) for r in session.liveliness().get("rsal/r0/**", timeout=1.0) if r.ok}
+    assert "rsal/r0/laser/0" in alive

@@ -11,7 +11,7 @@ import msgpack
 import numpy as np
 import pytest
 from bridge_helpers import LiveServer
-from conftest import free_port, wait_until
+from conftest import ROOT, free_port, wait_until
 
 from mrs_bridge.driver import Driver, OutOfRange
 from mrs_bridge.drivers.rangertolaser import RangerToLaser
@@ -85,7 +85,7 @@ def servers():
     made: list[LiveServer] = []
 
     def make(text: str, *, port: int | None = None, **kw) -> LiveServer:
-        s = LiveServer(text, port=port or free_port(), drivers=DRIVERS, **kw)
+        s = LiveServer(text, port=port or free_port(), **{"drivers": DRIVERS, **kw})
         made.append(s)
         return s
 
@@ -446,3 +446,88 @@ def test_data_from_a_required_device_reaches_the_driver_and_bad_data_is_dropped(
         assert scan.ranges.tolist() == [1.0, 2.0] and scan.t == 1.0
         assert drv.count == 1
         assert srv.slot_state("rangertolaser") == "running"
+
+
+# ---------------------------------------------------------------------------- in-process dependencies
+def test_a_failed_driver_takes_the_drivers_that_depend_on_it_along(servers, port, fabric_factory, caplog_bridge):
+    """The sim drivers depend on the simulation driver's world: when the simulation fails (here its
+    world step raises MemoryError), every robot device is withdrawn too, not left alive and silent;
+    a driver that depends on nothing (the counter) keeps serving."""
+    import mrs_bridge.drivers  # noqa: F401  (registers the sim drivers)
+    from mrs_bridge.driver import DRIVERS as REGISTRY
+
+    text = f"""
+    [server]
+    node = "sim"
+
+    [[driver]]
+    name = "simulation"
+    provides = ["simulation:0"]
+    worldfile = "{ROOT / "maps" / "testroom.world"}"
+
+    [[driver]]
+    name = "sim"
+    model = "r0"
+    provides = ["r0:position2d:0", "r0:laser:0"]
+
+    [[driver]]
+    name = "counter"
+    provides = ["c0:dio:0"]
+    """
+    srv = servers(text, port=port, drivers={**REGISTRY, **DRIVERS}).start()
+    fab = fabric_factory(port)
+    node = fab.node("**")
+    node.wait_for("**", count=4, timeout=10)
+    world = srv.server.shared["simulator.world"]
+
+    def explode():
+        raise MemoryError("cannot allocate the circle index")
+
+    world.advance = explode
+    for a in ("sim:simulation:0", "r0:position2d:0", "r0:laser:0"):
+        node.wait_gone(parse_device(a), timeout=5)
+    assert srv.slot_state("simulation") == "failed" and srv.slot_state("sim") == "failed"
+    assert node.is_alive(parse_device("c0:dio:0"))
+    assert fab.rpc(parse_device("c0:dio:0"), "scale", {"k": 1})["result"] == 2.0
+    errors = [r.getMessage() for r in caplog_bridge.records if r.levelno == logging.ERROR]
+    assert any("withdrawn because" in m and "simulation" in m for m in errors), errors
+
+
+def test_a_full_inbox_drops_cmds_and_answers_rpcs_busy():
+    """Zenoh's callbacks never wait and never queue more than INBOX_MAX items from the network."""
+    import textwrap
+
+    from conftest import FakeSession
+
+    from mrs_bridge.config import parse_config
+    from mrs_bridge.server import INBOX_MAX, DeviceServer
+
+    class Query:
+        payload = None
+
+        def __init__(self):
+            self.errors = []
+
+        def reply_err(self, payload):
+            self.errors.append(msgpack.unpackb(payload))
+
+        def drop(self):
+            pass
+
+    class Payload(bytes):
+        def to_bytes(self):
+            return bytes(self)
+
+    srv = DeviceServer(parse_config(textwrap.dedent(TWO_COUNTERS), source="t.toml"), FakeSession(), drivers=DRIVERS)
+    a = parse_device("r0:dio:0")
+    cmd = Payload(encode(VelocityCmd(0.1, 0.0)))
+    for _ in range(INBOX_MAX + 10):
+        srv._on_sample(("cmd", a), cmd, 1024)
+    assert srv.inbox.qsize() == INBOX_MAX and srv.stats["dropped"] == 10
+    q = Query()
+    srv._on_query(a, q)
+    assert [e["code"] for e in q.errors] == [ErrorCode.BUSY] and srv.stats["busy"] == 1
+    srv._on_sample(("cmd", a), Payload(b"x" * 2048), 1024)  # over the limit: not even queued
+    assert srv.stats["too_large"] == 1 and srv.inbox.qsize() == INBOX_MAX
+    srv.stop()  # the server's own items still get in
+    assert srv.inbox.qsize() == INBOX_MAX + 1
