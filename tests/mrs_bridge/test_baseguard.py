@@ -185,3 +185,93 @@ def test_sim_base_emergency_stop_latches_until_released(sim):
     _step(simulation, 10)
     d = _data(session)
     assert not d.estop and d.vel[0] > 0.3
+
+
+# ---------------------------------------------------------------------------- a local planner's output
+class FakeServer:
+    """What a driver sees of its server: everything it sends, publishes and requests is recorded."""
+
+    def __init__(self):
+        self.sent: list[tuple[str, object]] = []
+        self.published: list = []
+        self.requests: list[tuple[str, str]] = []
+        self.shared: dict = {}
+
+    def send(self, addr, msg):
+        self.sent.append((str(addr), msg))
+
+    def publish(self, addr, msg):
+        self.published.append(msg)
+
+    def publish_event(self, addr, msg):
+        pass
+
+    def request(self, driver, addr, op, args, timeout):
+        self.requests.append((str(addr), op))
+
+
+@pytest.fixture
+def planner():
+    from mrs_bridge.drivers.localplanner import VFHDriver
+
+    cfg = parse_config(
+        """
+[[driver]]
+name = "vfh"
+provides = ["r0:position2d:1"]
+requires = ["r0:position2d:0", "r0:laser:0"]
+cmd_timeout = 0.5
+""",
+        source="nav.toml",
+    ).drivers[0]
+    srv = FakeServer()
+    drv = VFHDriver(cfg, srv)
+    clock = Clock()
+    drv.guard.clock = clock
+    drv.setup()
+    return drv, srv, clock
+
+
+def _base_cmds(srv) -> list[tuple[float, float]]:
+    return [(m.v, m.w) for a, m in srv.sent if a == "r0:position2d:0"]
+
+
+def test_a_passed_through_velocity_times_out_at_the_planner(planner):
+    drv, srv, clock = planner
+    out = parse_device("r0:position2d:1")
+    drv.on_cmd(out, {"v": 0.3, "w": 0.0})
+    assert _base_cmds(srv) == [(0.3, 0.0)]
+    clock.t += 0.4
+    drv.update(clock.t)
+    assert _base_cmds(srv) == [(0.3, 0.0)]  # not yet
+    clock.t += 0.2
+    drv.update(clock.t)
+    drv.update(clock.t)
+    assert _base_cmds(srv) == [(0.3, 0.0), (0.0, 0.0)]  # zero, once
+    drv.on_input(parse_device("r0:position2d:0"), "data", Position2dData(1.0, (0, 0, 0), (0, 0, 0)).to_dict())
+    assert srv.published[-1].timed_out
+    drv.on_cmd(out, {"v": 0.2, "w": 0.0})
+    drv.on_input(parse_device("r0:position2d:0"), "data", Position2dData(1.1, (0, 0, 0), (0, 0, 0)).to_dict())
+    assert not srv.published[-1].timed_out
+
+
+def test_the_planner_output_latches_presses_its_base_and_refuses_goals(planner):
+    drv, srv, clock = planner
+    out = parse_device("r0:position2d:1")
+    drv.on_rpc(out, "goto", {"goal": [2.0, 0.0, 0.0]})
+    assert drv.on_rpc(out, "estop", {}) == {"estop": True}
+    assert ("r0:position2d:0", "estop") in srv.requests
+    assert _base_cmds(srv)[-1] == (0.0, 0.0) and drv.planner.goal is None
+    with pytest.raises(Latched):
+        drv.on_cmd(out, {"goal": [2.0, 0.0, 0.0]})
+    with pytest.raises(Latched):
+        drv.on_cmd(out, {"v": 0.2, "w": 0.0})
+    with pytest.raises(RpcError) as e:
+        drv.on_rpc(out, "goto", {"goal": [2.0, 0.0, 0.0]})
+    assert e.value.code == "estop"
+    n = len(srv.sent)
+    drv.on_input(parse_device("r0:position2d:0"), "data", Position2dData(1.0, (0, 0, 0), (0, 0, 0)).to_dict())
+    assert len(srv.sent) == n and srv.published[-1].estop  # nothing commanded while latched
+    drv.on_rpc(out, "release", {})
+    drv.on_rpc(out, "goto", {"goal": [2.0, 0.0, 0.0]})
+    assert drv.planner.goal is not None
