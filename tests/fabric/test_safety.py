@@ -135,3 +135,61 @@ def test_velocity_rpc_while_latched_is_a_typed_error(sim):
     assert pos.rpc("set_velocity", v=0.2, w=0.0) == {"ok": True}
     wait_until(lambda: moving(fab, ["r0"])["r0"], 5, "r0 to move after the release")
     pos.stop()
+
+
+def estop_cli(port, *args) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        rsal_cmd("estop", *args, "--connect", f"tcp/127.0.0.1:{port}"), capture_output=True, text=True, timeout=60
+    )
+
+
+def test_estop_all_stops_every_robot_while_their_controllers_keep_commanding(procs, port, fabric_factory):
+    from rsal.estop import estop
+
+    procs(rsal_cmd("sim", str(MAPS / "arena.world"), "--listen", f"tcp/127.0.0.1:{port}"))
+    fab = fabric_factory(port)
+    node = fab.node("*:position2d:0", "sim:simulation:0")
+    node.wait_for("sim:simulation:0", timeout=30)
+    names = fab.device("sim:simulation:0").rpc("models")["robots"]
+    assert len(names) >= 3
+    node.wait_for("*:position2d:0", count=len(names), timeout=30)
+    start_driver(procs, port, ",".join(names), v=0.2)
+    wait_until(lambda: all(moving(fab, names).values()), 10, "every robot to move (ground truth)")
+
+    # the fabric-wide query, timed from the moment it is sent
+    t0 = time.monotonic()
+    res = estop(fab.session)
+    confirmed = time.monotonic() - t0  # every base answered: each had stopped its robot before answering
+    assert sorted(res.robots) == sorted(names) and not res.failed, res
+    latency = max(confirmed, *(stop_time(fab, n, t0, horizon=1.5) for n in names))
+    print(
+        f"estop --all: {len(names)} robots confirmed in {confirmed:.3f} s, no true pose changed after {latency:.3f} s"
+    )
+    assert latency <= 0.5
+    assert not any(moving(fab, names).values())  # still commanded, still stopped
+    bases = [fab.device(f"{n}:position2d:0") for n in names]
+    wait_until(lambda: all(b.latest is not None and b.latest.estop for b in bases), 2, "every base to report estop")
+
+    # the same from a shell
+    r = estop_cli(port, "--all", "--release")
+    assert r.returncode == 0 and r.stdout.startswith("released: ") and all(n in r.stdout for n in names), r.stderr
+    wait_until(lambda: all(moving(fab, names).values()), 5, "the robots to move again after the release")
+    r = estop_cli(port, "--all")
+    assert r.returncode == 0 and r.stdout.startswith("latched: ") and all(n in r.stdout for n in names), r.stderr
+    assert not any(moving(fab, names).values())
+    assert estop_cli(port, "--all", "--release").returncode == 0
+    wait_until(lambda: all(moving(fab, names).values()), 5, "the robots to move again")
+
+    # one robot: only that one stops
+    r = estop_cli(port, names[0])
+    assert r.returncode == 0 and r.stdout.strip() == f"latched: {names[0]} (position2d:0)", r.stdout + r.stderr
+    m = moving(fab, names)
+    assert not m[names[0]] and all(m[n] for n in names[1:]), m
+    assert estop_cli(port, names[0], "--release").returncode == 0
+
+
+def test_estop_cli_errors_are_one_line(port):
+    r = estop_cli(port, "--wait", "1", "nobody")
+    assert r.returncode == 1 and "no base of nobody answered" in r.stderr and "Traceback" not in r.stderr
+    r = estop_cli(port)
+    assert r.returncode == 1 and r.stderr.count("\n") == 1 and "--all" in r.stderr
