@@ -193,3 +193,14 @@ def test_estop_cli_errors_are_one_line(port):
     assert r.returncode == 1 and "no base of nobody answered" in r.stderr and "Traceback" not in r.stderr
     r = estop_cli(port)
     assert r.returncode == 1 and r.stderr.count("\n") == 1 and "--all" in r.stderr
+
+
+def test_motor_power_from_the_client(sim):
+    fab = sim
+    pos = fab.device("r0:position2d:0")
+    assert pos.set_motor_power(False) is False
+    pos.set_velocity(0.0, 0.5)
+    assert not moving(fab, ["r0"])["r0"]  # motors off: commands are ignored
+    assert pos.set_motor_power(True) is True
+    wait_until(lambda: moving(fab, ["r0"])["r0"], 5, "r0 to turn with its motors on (the held command)")
+    pos.stop()
