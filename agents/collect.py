@@ -496,7 +496,7 @@ class CollectAgent(RobotAgent):
                 v, w = 0.0, math.copysign(min(0.6, 1.2 * abs(bearing)), bearing)
             else:
                 v, w = self.creep_speed, max(-0.5, min(0.5, 1.5 * bearing))
-            base.set_velocity(v, w)
+            base.set_velocity(v, w, hold=False)  # refreshed by this 10 Hz loop
             await asyncio.sleep(0.1)
         await asyncio.to_thread(base.stop)
         return bool(g.beams)
@@ -522,7 +522,7 @@ class CollectAgent(RobotAgent):
             p = base.position
             if start is not None and p is not None and p.distance_to(start) >= dist:
                 break
-            base.set_velocity(v, w)
+            base.set_velocity(v, w, hold=False)  # refreshed by this 10 Hz loop
             await asyncio.sleep(0.1)
         await asyncio.to_thread(base.stop)
 

@@ -679,7 +679,24 @@ class Control:
                 wf.stopping = True
                 st.note = "wall-following stopping"
             return {"ok": True, "robot": name, "note": st.note}
-        raise ApiError(f"unknown robot action {action!r}; use pose, goal, stop or wallfollow", 404)
+        if action == "estop":
+            return self.estop(body, name)
+        raise ApiError(f"unknown robot action {action!r}; use pose, goal, stop, estop or wallfollow", 404)
+
+    def estop(self, body: dict, name: str | None = None) -> dict:
+        """Latch (``{"release": true}``: release) the emergency stop of robot ``name``'s bases, or of
+        every base on the fabric: the bases refuse every commander, running scenarios' agents included."""
+        from rsal.estop import estop
+
+        _only(body, "estop", ("release",))
+        release = body.get("release", False)
+        if not isinstance(release, bool):
+            raise ApiError("estop.release must be true or false")
+        res = estop(self.fabric.session, name, release=release)
+        if not res.confirmed:
+            who = f"no base of robot {name!r}" if name else "no robot"
+            raise ApiError(f"{who} answered the emergency stop; is it on the fabric?", 502)
+        return {"ok": not res.failed, "robots": res.robots, "note": res.summary(), "failed": res.failed}
 
 
 def _addr(text: str):
@@ -808,6 +825,8 @@ class Handler(BaseHTTPRequestHandler):
                     except ValueError:
                         raise ApiError(f"run id {parts[2]!r} must be a number", 404) from None
                     return self._json(c.stop_run(rid))
+                if parts == ["api", "estop"]:
+                    return self._json(c.estop(self._body()))
                 if len(parts) == 4 and parts[:2] == ["api", "robots"]:
                     return self._json(c.robot_action(parts[2], parts[3], self._body()))
             raise ApiError(f"no such API: {method} {url.path}; see docs/control.md", 404)

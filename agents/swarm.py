@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from rsal.behaviours import SECTOR_COUNT, Sectors, Subsumption, beam_points, fuse
-from rsal.client import Fabric
+from rsal.client import HOLD_REFRESH, Fabric
 from rsal.data import Board, BoardObject, Position, normalize_angle
 from rsal.msgs import RpcError
 from rsal.robot import Pioneer, RobotError
@@ -304,7 +304,7 @@ class SwarmPioneer(Pioneer):
                 fn(b.state)
         cmd = (round(v, 3), round(w, 3))
         if cmd != self._last_cmd or cmd != (0.0, 0.0):  # re-sent while moving, a stop once
-            pos.set_velocity(*cmd)
+            pos.set_velocity(*cmd, hold=self.period > HOLD_REFRESH)  # see Pioneer.update
             self._last_cmd = cmd
 
 

@@ -1,6 +1,6 @@
 """The ``rsal`` command line.
 
-``rsal`` itself knows the commands of the RSAL layer (``ls``, ``goto``, ``router``, ``watch``); the other
+``rsal`` itself knows the commands of the RSAL layer (``ls``, ``goto``, ``estop``, ``router``, ``watch``); the other
 layers add theirs through the ``rsal.commands`` entry-point group (``serve`` and ``sim`` from
 ``mrs_bridge``, ``demo`` from ``agents``), so this package never imports the layers above or beside
 it. Each entry point is a function ``register(subparsers)`` that adds a sub-command whose
@@ -189,6 +189,36 @@ def _cmd_goto(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_estop(args: argparse.Namespace) -> int:
+    from . import keys
+    from .client import Fabric
+    from .estop import estop
+
+    if (args.robot is None) == (not args.all):
+        print("rsal estop: name one robot (rsal estop r0) or --all for every robot on the fabric", file=sys.stderr)
+        return 1
+    if args.robot is not None:
+        keys.check_name("robot", args.robot)
+    with Fabric.connect(TransportArgs.from_namespace(args)) as fab:
+        deadline = time.monotonic() + args.wait
+        while True:  # the session may still be connecting: ask again until a base answers
+            res = estop(fab.session, args.robot, release=args.release, timeout=min(2.0, args.wait))
+            if res.confirmed or time.monotonic() >= deadline:
+                break
+    for text in res.failed:
+        print(f"rsal estop: {text}", file=sys.stderr)
+    if not res.confirmed:
+        who = f"no base of {args.robot}" if args.robot else "no robot"
+        print(
+            f"rsal estop: {who} answered within {args.wait:g} s; check the robot is on the fabric (rsal ls) "
+            "and the endpoint (--connect)",
+            file=sys.stderr,
+        )
+        return 1
+    print(res.summary(), flush=True)
+    return 1 if res.failed else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="rsal", description="RSAL fabric: peer-to-peer multi-robot platform over Zenoh.")
     ap.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
@@ -212,6 +242,18 @@ def build_parser() -> argparse.ArgumentParser:
     go.add_argument("--progress", type=float, default=2.0, help="seconds between progress lines (default 2)")
     add_transport_args(go)
     go.set_defaults(func=_cmd_goto)
+    es = sub.add_parser(
+        "estop",
+        help="latch (or release) the emergency stop of a robot or of every robot",
+        description="Latch the emergency stop of ROBOT's bases, or of every base on the fabric with --all: they stop "
+        "and refuse velocity commands until released with --release. Prints the robots that confirmed.",
+    )
+    es.add_argument("robot", metavar="ROBOT", nargs="?", help="the robot (node), e.g. r0")
+    es.add_argument("--all", action="store_true", help="every robot on the fabric")
+    es.add_argument("--release", action="store_true", help="release the latch instead of pressing it")
+    es.add_argument("--wait", type=float, default=5.0, help="seconds to wait for the bases' answers (default 5)")
+    add_transport_args(es)
+    es.set_defaults(func=_cmd_estop)
     from .router import register as register_router
 
     register_router(sub)

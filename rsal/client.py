@@ -4,6 +4,11 @@
 :mod:`rsal.transport`), makes :mod:`device proxies <rsal.devices>` for addresses, runs RPCs as
 futures, and runs every listener on one dispatcher thread, so Zenoh's own threads only decode
 samples and queue work (STYLE rule 2: callbacks never block and never call Zenoh).
+
+Bases stop when their velocity commands stop (``cmd_timeout``, 0.5 s by default, docs/protocol.md);
+:meth:`Fabric.hold` re-sends a held velocity command every :data:`HOLD_REFRESH` seconds from one
+thread per fabric, for callers that set a velocity once and expect it to hold. It stops with the
+process, so a dead client's robot still stops.
 """
 
 from __future__ import annotations
@@ -11,6 +16,7 @@ from __future__ import annotations
 import logging
 import queue
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
@@ -22,9 +28,11 @@ from .keys import DeviceAddr
 from .msgs import ErrorCode, RpcError, encode, parse_reply
 from .transport import TransportArgs, open_session
 
-__all__ = ["Fabric", "Dispatcher", "query_rpc"]
+__all__ = ["Fabric", "Dispatcher", "query_rpc", "HOLD_REFRESH"]
 
 log = logging.getLogger(__name__)
+
+HOLD_REFRESH = 0.2  # s: a held command is re-sent this often (5 Hz, well inside a base's 0.5 s cmd_timeout)
 
 
 def query_rpc(
@@ -117,6 +125,9 @@ class Fabric:
         self._proxies: dict[DeviceAddr, Any] = {}
         self._lock = threading.Lock()
         self._closed = False
+        self._held: dict[DeviceAddr, list] = {}  # addr -> [encoded cmd, monotonic time last sent]
+        self._hold_wake = threading.Event()
+        self._hold_thread: threading.Thread | None = None
 
     @classmethod
     def connect(cls, args: TransportArgs | None = None) -> Fabric:
@@ -132,6 +143,9 @@ class Fabric:
         if self._closed:
             return
         self._closed = True
+        with self._lock:
+            self._held.clear()
+        self._hold_wake.set()
         for p in list(self._proxies.values()):
             p.undeclare()
         self._proxies.clear()
@@ -193,3 +207,35 @@ class Fabric:
     def send(self, addr: DeviceAddr, msg) -> None:
         """Fire-and-forget command to ``rsal/<addr>/cmd``."""
         self.session.put(keys.cmd_key(addr), encode(msg), congestion_control=zenoh.CongestionControl.DROP)
+
+    def hold(self, addr: DeviceAddr, msg) -> None:
+        """Send ``msg`` to ``addr``'s ``cmd`` now and re-send it every :data:`HOLD_REFRESH` s until
+        the next :meth:`hold` or :meth:`release` of that device (or :meth:`close`)."""
+        payload = encode(msg)
+        self.session.put(keys.cmd_key(addr), payload, congestion_control=zenoh.CongestionControl.DROP)
+        with self._lock:
+            if self._closed:
+                return
+            self._held[addr] = [payload, time.monotonic()]
+            if self._hold_thread is None:
+                self._hold_thread = threading.Thread(target=self._refresh_held, name="rsal-hold", daemon=True)
+                self._hold_thread.start()
+
+    def release(self, addr: DeviceAddr) -> None:
+        """Stop re-sending ``addr``'s held command (it then times out at the base unless refreshed)."""
+        with self._lock:
+            self._held.pop(addr, None)
+
+    def _refresh_held(self) -> None:
+        while not self._closed:
+            now = time.monotonic()
+            with self._lock:
+                due = [(a, h) for a, h in self._held.items() if now - h[1] >= HOLD_REFRESH - 0.01]
+                for _, h in due:
+                    h[1] = now
+            for a, h in due:
+                try:
+                    self.session.put(keys.cmd_key(a), h[0], congestion_control=zenoh.CongestionControl.DROP)
+                except Exception as e:  # the session closed under us
+                    log.debug("held command to %s not re-sent: %s", a, e)
+            self._hold_wake.wait(HOLD_REFRESH / 2)

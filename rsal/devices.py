@@ -235,17 +235,56 @@ class Position2d(Device):
     def stalled(self) -> bool:
         return bool(self.latest.stall) if self.latest is not None else False
 
-    def set_velocity(self, v: float, w: float) -> None:
-        """Forward speed m/s and turn rate rad/s (the server rejects values over the robot's limits)."""
-        self.send(msgs.VelocityCmd(float(v), float(w)))
+    def set_velocity(self, v: float, w: float, *, hold: bool = True) -> None:
+        """Forward speed m/s and turn rate rad/s (the server rejects values over the robot's limits).
+
+        A base stops by itself when its velocity command is not refreshed within its ``cmd_timeout``
+        (0.5 s by default). ``hold=True``: the fabric re-sends this command every 0.2 s until the
+        next command or :meth:`stop`, for callers that set a velocity once. ``hold=False``: the
+        caller refreshes it itself (a control cycle at 5 Hz or more), so a controller that hangs
+        lets the robot stop."""
+        cmd = msgs.VelocityCmd(float(v), float(w))
+        if hold and (cmd.v != 0.0 or cmd.w != 0.0):
+            self.fabric.hold(self.addr, cmd)
+        else:
+            self.fabric.release(self.addr)
+            self.send(cmd)
 
     def stop(self) -> None:
+        self.fabric.release(self.addr)
         self.send(msgs.VelocityCmd(0.0, 0.0))
 
     def goto(self, goal: Position) -> None:
         """Drive to ``goal`` in this device's frame: for a local planner's position2d (vfh, nd, snd),
-        which reports ``{"event": "done"}`` on arrival; a plain base rejects it."""
+        which reports ``{"event": "done"}`` on arrival; a plain base rejects it. A position goal is
+        not a held velocity: the planner pursues it without refresh."""
+        self.fabric.release(self.addr)
         self.send(msgs.GoalCmd(goal.as_tuple()))
+
+    def set_motor_power(self, on: bool, timeout: float = 5.0) -> bool:
+        """Switch the motors on or off (Player's ``MOTOR_POWER``, ``rpc/motor_power``); while off the
+        base ignores velocity commands and stays stopped. Returns the state the base reports."""
+        return bool(self.rpc("motor_power", timeout=timeout, on=bool(on))["on"])
+
+    def estop(self, timeout: float = 5.0) -> dict:
+        """Latch this base's emergency stop (``rpc/estop``): it stops and refuses velocity commands
+        until :meth:`release_estop`."""
+        self.fabric.release(self.addr)
+        return self.rpc("estop", timeout=timeout)
+
+    def release_estop(self, timeout: float = 5.0) -> dict:
+        """Release the latched emergency stop (``rpc/release``)."""
+        return self.rpc("release", timeout=timeout)
+
+    @property
+    def estopped(self) -> bool:
+        """The base reports its emergency stop latched."""
+        return bool(self.latest.estop) if self.latest is not None else False
+
+    @property
+    def timed_out(self) -> bool:
+        """The base stopped itself because its velocity command was not refreshed in time."""
+        return bool(self.latest.timed_out) if self.latest is not None else False
 
     def set_odometry(self, pose: Position) -> dict:
         return self.rpc("set_odom", pose=list(pose.as_tuple()))

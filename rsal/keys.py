@@ -149,6 +149,13 @@ def rpc_key(addr: DeviceAddr, op: str) -> str:
     return f"{PREFIX}/{addr.path}/rpc/{check_name('operation', op)}"
 
 
+def bases_rpc_keyexpr(op: str, node: str | None = None) -> str:
+    """Every ``position2d``'s ``rpc/<op>`` of ``node`` (of every node if None): the emergency stop's
+    one query to many bases."""
+    n = "*" if node is None else check_name("node", node)
+    return f"{PREFIX}/{n}/position2d/*/rpc/{check_name('operation', op)}"
+
+
 def event_key(addr: DeviceAddr) -> str:
     return f"{PREFIX}/{addr.path}/event"
 

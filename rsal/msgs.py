@@ -77,6 +77,7 @@ class ErrorCode(StrEnum):
     UNKNOWN_OP = "unknown_op"  # the device has no such operation
     NOT_FOUND = "not_found"  # a named thing (model, goal) does not exist
     UNAVAILABLE = "unavailable"  # the device cannot do it now (required device lost, busy)
+    ESTOP = "estop"  # the base's emergency stop is latched: it refuses to move until released
     INTERNAL = "internal"  # the driver failed; see the server log
     TOO_LARGE = "too_large"  # the request payload is over the server's limit; not decoded
     BUSY = "busy"  # the server's inbox is full; try again later
@@ -313,16 +314,27 @@ class VelocityCmd(_Msg):
 @dataclass(slots=True)  # not frozen: a frozen init costs 4x on this hot path; treat as immutable
 class Position2dData(_Msg):
     """position2d ``data``: pose (x, y, yaw) in the device's frame (odometry or map), velocity
-    (vx, vy, w) in the robot frame, stall flag."""
+    (vx, vy, w) in the robot frame, stall flag; ``timed_out``: the base stopped itself because its
+    velocity command was not refreshed within its ``cmd_timeout``; ``estop``: its emergency stop is
+    latched."""
 
     t: float
     pose: tuple[float, float, float]
     vel: tuple[float, float, float]
     stall: bool = False
+    timed_out: bool = False
+    estop: bool = False
 
     @classmethod
     def from_dict(cls, m: dict) -> Position2dData:
-        return cls(get_float(m, "t"), get_vec(m, "pose", 3), get_vec(m, "vel", 3), get_bool(m, "stall", False))
+        return cls(
+            get_float(m, "t"),
+            get_vec(m, "pose", 3),
+            get_vec(m, "vel", 3),
+            get_bool(m, "stall", False),
+            get_bool(m, "timed_out", False),
+            get_bool(m, "estop", False),
+        )
 
 
 # ---------------------------------------------------------------------------- ranger / laser / sonar

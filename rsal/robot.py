@@ -24,6 +24,7 @@ from concurrent.futures import Future
 import numpy as np
 
 from .behaviours import BehaviourParams, Subsumption, beam_points, fuse
+from .client import HOLD_REFRESH
 from .data import BlobfinderBlob, Position
 from .devices import Blobfinder, Device, Gripper, Laser, Planner, Position2d, Ranger, Simulation, Sonar
 
@@ -192,7 +193,9 @@ class Pioneer(Robot):
         # Re-send every cycle while moving (a lost command must not leave the robot stuck);
         # send a stop once.
         if cmd != self._last_cmd or cmd != (0.0, 0.0):
-            pos.set_velocity(*cmd)
+            # A cycle faster than the fabric's refresh refreshes the base itself, so a hung cycle lets
+            # the base's command timeout stop the robot; a slower one lets the fabric re-send it.
+            pos.set_velocity(*cmd, hold=self.period > HOLD_REFRESH)
             self._last_cmd = cmd
 
 

@@ -372,6 +372,12 @@ class World:
         vmax, wmax = float(self._limits[m.row, 0]), float(self._limits[m.row, 1])
         self._cmd[m.row] = (min(max(float(v), -vmax), vmax), min(max(float(w), -wmax), wmax))
 
+    def halt(self, name: str) -> None:
+        """Stop a robot at once, past its acceleration limits (a brake: command timeout, emergency stop)."""
+        m = self._robot(name)
+        self._cmd[m.row] = (0.0, 0.0)
+        self._vel[m.row] = (0.0, 0.0)
+
     def velocity(self, name: str) -> tuple[float, float]:
         """The robot's current ``(v, w)`` after acceleration limits and collisions."""
         return tuple(float(x) for x in self._vel[self._robot(name).row])  # type: ignore[return-value]

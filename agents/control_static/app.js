@@ -204,6 +204,15 @@ async function robotAction(action, body) {
   }
 }
 
+async function estopAll(release) {
+  try {
+    const res = await api("POST", "/api/estop", { release });
+    $("#estop-note").textContent = res.note;
+  } catch (e) {
+    $("#estop-note").textContent = e.message;
+  }
+}
+
 async function refreshMap(maps) {
   const want = maps.includes("sim:map:0") ? "sim:map:0" : maps[0];
   if (!want) {
@@ -382,6 +391,10 @@ window.addEventListener("load", () => {
   $("#add-arg").addEventListener("click", addArgument);
   $("#robot").addEventListener("change", () => poll());
   $("#robot-stop").addEventListener("click", () => robotAction("stop", {}));
+  $("#robot-estop").addEventListener("click", () => robotAction("estop", {}));
+  $("#robot-estop-release").addEventListener("click", () => robotAction("estop", { release: true }));
+  $("#estop-all").addEventListener("click", () => estopAll(false));
+  $("#estop-release-all").addEventListener("click", () => estopAll(true));
   $("#robot-wallfollow").addEventListener("click", (ev) => robotAction("wallfollow", { on: !ev.target.dataset.on }));
   setupMap();
   loadScenarios().catch((e) => ($("#start-error").textContent = e.message));

@@ -75,6 +75,15 @@ cat > "$out/router.json5" <<JSON
         key_exprs: ["**"],
       },
       {
+        // a viewer that sees a runaway robot may press the emergency stop (one robot's or every
+        // base's rpc/estop); releasing it (rpc/release) is the fleet's
+        id: "estop-in",
+        permission: "allow",
+        flows: ["ingress"],
+        messages: ["query"],
+        key_exprs: ["rsal/*/position2d/*/rpc/estop"],
+      },
+      {
         // what a viewer receives: data, events, service messages, tokens and liveliness answers
         id: "watch-out",
         permission: "allow",
@@ -89,7 +98,7 @@ cat > "$out/router.json5" <<JSON
     ],
     policies: [
       { rules: ["everything"], subjects: ["fleet"] },
-      { rules: ["watch-in", "watch-out"], subjects: ["viewer"] },
+      { rules: ["watch-in", "watch-out", "estop-in"], subjects: ["viewer"] },
     ],
   },
 }

@@ -19,7 +19,13 @@ sensors see, and reports the base's pose as its data. A :class:`~rsal.msgs.Veloc
 ``cmd`` key cancels the goal and is passed to the base (manual driving through the planner).
 Events: ``{"event": "done"}`` when the goal pose is reached, ``{"event": "blocked"}`` when the
 planner starts an escape. Parameters are the algorithm's, by Player's names and units (angles in
-degrees); the robot's size comes from the base's describe geometry.
+degrees), plus ``cmd_timeout``; the robot's size comes from the base's describe geometry.
+
+Safety (:mod:`mrs_bridge.baseguard`): a VelocityCmd passed through holds for ``cmd_timeout`` s
+(the planner then commands its base zero); a goal is not a held velocity and is pursued without
+refresh, the planner refreshing its base at least every :data:`REFRESH` s while it drives. The
+output answers ``estop`` and ``release`` like a base: latched, it drops its goal, stops the base,
+presses the base's own emergency stop, and refuses goals and velocities until released.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ import math
 
 from rsal.msgs import ErrorCode, GoalCmd, MessageError, Position2dData, RangerData, RpcError, VelocityCmd, get_vec
 
+from ..baseguard import ESTOP_OPS, BaseGuard
 from ..config import ConfigError
 from ..driver import Driver, OutOfRange, register
 from .navcommon import BeamGeometry
@@ -36,11 +43,12 @@ __all__ = ["LocalPlannerDriver"]
 
 RANGE_IFACES = ("laser", "ranger", "sonar")
 STALE_SCAN = 1.0  # s (wall): a range device silent this long no longer counts (its points are dropped)
+REFRESH = 0.2  # s (wall): while driving to a goal, the base's command is re-sent at least this often
 
 
 class LocalPlannerDriver(Driver):
     interfaces = ("position2d",)
-    default_rate = 0.0  # event driven: one cycle per odometry message of the base
+    default_rate = 10.0  # control is event driven (one cycle per odometry message); update() refreshes and times out
     data_types = {"position2d": "Position2dData"}
     cmd_types = {"position2d": "GoalCmd | VelocityCmd"}
     algorithm: type | None = None
@@ -56,8 +64,10 @@ class LocalPlannerDriver(Driver):
             )
         self.base = bases[0].without_key()
         self.out = cfg.provides[0]
+        self.guard = BaseGuard.for_driver(self, self.out.node)
+        self.params = {k: v for k, v in cfg.params.items() if k != "cmd_timeout"}
         try:  # validate now, so a bad parameter is a config error at start
-            self.planner = self.algorithm(dict(cfg.params))
+            self.planner = self.algorithm(dict(self.params))
         except ValueError as e:
             raise ConfigError(f"{cfg.where}: {e}") from None
         self.geometry_of: dict = {}
@@ -68,6 +78,9 @@ class LocalPlannerDriver(Driver):
         self._last_t: float | None = None
         self._last_status = "idle"
         self._sent_stop = True
+        self._last_cmd = (0.0, 0.0)  # the last velocity sent to the base, and when (wall)
+        self._last_send = -math.inf
+        self._last_odom = -math.inf
         self.base_size = None
         self._base_described = False
 
@@ -82,6 +95,10 @@ class LocalPlannerDriver(Driver):
 
     def on_reply(self, addr, op, result, error) -> None:
         a = addr.without_key()
+        if op == "estop":
+            if error is not None:
+                self.log.error("%s: could not latch the emergency stop of %s: %s", self.cfg.where, a, error)
+            return
         if error is not None:
             self.warn(f"retry:{op}", f"{self.cfg.where}: {a} rpc/{op} failed ({error}); retrying")
             self.request(a, op)
@@ -97,7 +114,7 @@ class LocalPlannerDriver(Driver):
             ):
                 self.base_size = (float(size[0]), float(size[1]))
                 goal = self.planner.goal
-                self.planner = self.algorithm(dict(self.cfg.params), geometry=self.base_size)
+                self.planner = self.algorithm(dict(self.params), geometry=self.base_size)
                 if goal is not None:
                     self.planner.set_goal(goal)
         else:
@@ -114,6 +131,10 @@ class LocalPlannerDriver(Driver):
             except MessageError:
                 return
             self.pose, self.vel, self.stall = d.pose, d.vel, d.stall
+            self._last_odom = self._now()
+            g = self.guard
+            if g.timed_out or g.estop:
+                d = Position2dData(d.t, d.pose, d.vel, d.stall, d.timed_out or g.timed_out, d.estop or g.estop)
             self.publish(self.out, d)
             # One control cycle per odometry message, timed by the base's own clock (simulated time
             # under a simulator at any speed-up).
@@ -128,9 +149,32 @@ class LocalPlannerDriver(Driver):
             self.scans[a] = (self._now(), self.geometry_of[a].points(scan))
 
     def _now(self) -> float:
-        import time
+        return self.guard.clock()
 
-        return time.monotonic()
+    def _drive(self, v: float, w: float) -> None:
+        """Command the base (and remember it for the refresh)."""
+        self.send(self.base, VelocityCmd(v, w))
+        self._last_cmd = (v, w)
+        self._last_send = self._now()
+        self._sent_stop = v == 0.0 and w == 0.0
+
+    def update(self, now: float) -> None:
+        """Wall-clock duties between odometry cycles: the passed-through velocity's timeout, and the
+        refresh of the base's command while driving to a goal (a slow simulation's odometry may come
+        less often than the base's command timeout)."""
+        if self.guard.expired():
+            self._drive(0.0, 0.0)
+            return
+        t = self._now()
+        active = self.planner.goal is not None and self.planner.status not in ("idle", "done")
+        if (
+            active
+            and not self.guard.estop
+            and self._last_cmd != (0.0, 0.0)
+            and t - self._last_send >= REFRESH
+            and t - self._last_odom <= STALE_SCAN
+        ):
+            self._drive(*self._last_cmd)
 
     # ------------------------------------------------------------------ control
     def _control(self, dt: float) -> None:
@@ -141,14 +185,14 @@ class LocalPlannerDriver(Driver):
         pts = np.concatenate(fresh) if fresh else np.zeros((0, 2))
         active = self.planner.goal is not None and self.planner.status not in ("idle", "done")
         cmd = self.planner.step(self.pose, (self.vel[0], self.vel[2]), pts, dt)
-        if active or self.planner.status == "driving":
+        if self.guard.estop:  # latched: the goal was dropped; nothing is sent
+            pass
+        elif active or self.planner.status == "driving":
             if not fresh:  # blind: do not drive on stale data
                 cmd = (0.0, 0.0)
-            self.send(self.base, VelocityCmd(float(cmd[0]), float(cmd[1])))
-            self._sent_stop = cmd[0] == 0.0 and cmd[1] == 0.0
+            self._drive(float(cmd[0]), float(cmd[1]))
         elif not self._sent_stop:
-            self.send(self.base, VelocityCmd(0.0, 0.0))
-            self._sent_stop = True
+            self._drive(0.0, 0.0)
         status = str(self.planner.status)
         if status != self._last_status:
             if status in ("done", "blocked"):
@@ -159,29 +203,49 @@ class LocalPlannerDriver(Driver):
         if "goal" in msg:
             self._goto(GoalCmd.from_dict(msg).goal)
             return
-        v = VelocityCmd.from_dict(msg)
+        self._velocity(VelocityCmd.from_dict(msg))
+
+    def _velocity(self, v: VelocityCmd, *, rpc: bool = False) -> None:
+        """A velocity passed through to the base: cancels the goal, held for ``cmd_timeout``."""
+        self.guard.check(rpc=rpc)
         self.planner.stop()
+        self.guard.command(v.v, v.w)
         self.send(self.base, v)
+        self._last_cmd, self._last_send = (v.v, v.w), self._now()
         self._sent_stop = v.v == 0.0 and v.w == 0.0
 
-    def _goto(self, goal) -> None:
+    def _goto(self, goal, *, rpc: bool = False) -> None:
         if not all(math.isfinite(x) for x in goal):
             raise OutOfRange("goal must be finite")
+        self.guard.check(rpc=rpc)
+        self.guard.stopped()  # a goal replaces a passed-through velocity; it needs no refresh
         self.planner.set_goal(goal)
         self._last_status = "driving"
 
     def ops(self, addr):
-        return ["goto", "stop", "status"]
+        return ["goto", "stop", "status", *ESTOP_OPS]
 
     def on_rpc(self, addr, op, args):
         if op == "goto":
-            self._goto(get_vec(args, "goal", 3))
+            self._goto(get_vec(args, "goal", 3), rpc=True)
             return {"status": str(self.planner.status)}
         if op == "stop":
             self.planner.stop()
-            self.send(self.base, VelocityCmd(0.0, 0.0))
-            self._sent_stop = True
+            self.guard.stopped()
+            self._drive(0.0, 0.0)
             return {"status": "idle"}
+        if op == "set_velocity":
+            self._velocity(VelocityCmd.from_dict(args), rpc=True)
+            return {}
+        if op == "estop":
+            self.guard.press()
+            self.planner.stop()
+            self._drive(0.0, 0.0)
+            self.request(self.base, "estop")  # whoever else commands the base, it must stop too
+            return {"estop": True}
+        if op == "release":  # the planner's own latch; the base is released by its own rpc/release
+            self.guard.release()
+            return {"estop": False}
         if op == "status":
             g = self.planner.goal
             return {"status": str(self.planner.status), "goal": list(g) if g is not None else []}

@@ -97,6 +97,7 @@ from rsal.msgs import (
     get_vec,
 )
 
+from ..baseguard import ESTOP_OPS, BaseGuard
 from ..config import ConfigError
 from ..driver import Driver, OutOfRange, register
 
@@ -511,7 +512,7 @@ class _Link(threading.Thread):
 
 
 # ---------------------------------------------------------------------------- the driver
-PARAMS = ("port", "baud", "model", "pulse", "reconnect", "timeout", "sonars")
+PARAMS = ("port", "baud", "model", "pulse", "reconnect", "timeout", "sonars", "cmd_timeout")
 WARN_INTERVAL = 5.0
 POWER_EMPTY, POWER_FULL = 10.5, 13.0  # V: 0 % and 100 % of a 12 V lead-acid pack
 
@@ -585,6 +586,7 @@ class P2osDriver(Driver):
         self._last_grip_cmd = ""
         self._lost_reason = ""
         self._t0 = time.monotonic()
+        self.guard = BaseGuard.for_driver(self, cfg.provides[0].node)
 
     def _num(self, key: str, default: float, lo: float, hi: float) -> float:
         v = self.cfg.param(key, default)
@@ -623,6 +625,11 @@ class P2osDriver(Driver):
                 self._on_connected(item[1], item[2], item[3])
             elif kind == "lost":
                 self._on_lost(item[1])
+        if self.guard.expired():  # the commander went silent: ARCOS would drive on while we pulse
+            try:
+                self._velocity(0.0, 0.0)
+            except RpcError:
+                pass  # not answering: ARCOS stops by itself without our pulse
         if newest is not None:
             self._publish(newest, stamp - self._t0)
         self._report_noise(now)
@@ -711,7 +718,8 @@ class P2osDriver(Driver):
             iface = a.interface
             if iface == "position2d":
                 p = self.odom.pose
-                self.publish(a, Position2dData(t, (p[0], p[1], p[2]), (v, 0.0, w), sip.stalled))
+                g = self.guard
+                self.publish(a, Position2dData(t, (p[0], p[1], p[2]), (v, 0.0, w), sip.stalled, g.timed_out, g.estop))
             elif iface in ("sonar", "ranger"):
                 if self._sonar_fresh and self.sonar_ranges is not None:
                     self.publish(a, RangerData(t, self.sonar_ranges.copy(), 0.0, 0.0, *m.sonar_range))
@@ -771,20 +779,8 @@ class P2osDriver(Driver):
     def on_cmd(self, addr, msg):
         iface = addr.interface
         if iface == "position2d":
-            c = VelocityCmd.from_dict(msg)
-            m = self.model or self.forced_model
-            if m is not None:
-                vmax, wmax = m.max_speed
-                if abs(c.v) > vmax + 1e-9 or abs(c.w) > wmax + 1e-9:
-                    raise OutOfRange(
-                        f"v={c.v:g} m/s, w={c.w:g} rad/s exceeds the {m.name} limits |v| <= {vmax:g}, |w| <= {wmax:.3g}"
-                    )
-            if c.vy != 0.0:
-                raise OutOfRange(f"vy={c.vy:g}: a differential drive cannot move sideways")
-            if not self._motors:
-                return
             try:
-                self._velocity(c.v, c.w)
+                self._command(VelocityCmd.from_dict(msg))
             except RpcError as e:
                 raise MessageError(e.message) from None
         elif iface == "gripper":
@@ -794,6 +790,22 @@ class P2osDriver(Driver):
             self._digout(c.bits, c.mask)
         else:
             raise MessageError(f"{addr} takes no commands")
+
+    def _command(self, c: VelocityCmd, *, rpc: bool = False) -> None:
+        m = self.model or self.forced_model
+        if m is not None:
+            vmax, wmax = m.max_speed
+            if abs(c.v) > vmax + 1e-9 or abs(c.w) > wmax + 1e-9:
+                raise OutOfRange(
+                    f"v={c.v:g} m/s, w={c.w:g} rad/s exceeds the {m.name} limits |v| <= {vmax:g}, |w| <= {wmax:.3g}"
+                )
+        if c.vy != 0.0:
+            raise OutOfRange(f"vy={c.vy:g}: a differential drive cannot move sideways")
+        self.guard.check(rpc=rpc)
+        if not self._motors:
+            return
+        self._velocity(c.v, c.w)
+        self.guard.command(c.v, c.w)
 
     def _gripper(self, action: str) -> None:
         try:
@@ -809,7 +821,7 @@ class P2osDriver(Driver):
     def ops(self, addr):
         i = addr.interface
         if i == "position2d":
-            return ["set_odom", "motor_power", "stop", "status"]
+            return ["set_odom", "motor_power", "stop", "status", *ESTOP_OPS]
         if i == "gripper":
             return ["open", "close", "up", "down", "stop"]
         if i in ("sonar", "ranger"):
@@ -836,10 +848,26 @@ class P2osDriver(Driver):
                     self._velocity(0.0, 0.0)
                 link.send(command(ENABLE, 1 if on else 0))
                 self._motors = on
+                if not on:
+                    self.guard.stopped()
                 return {"on": on}
             if op == "stop":
                 self._velocity(0.0, 0.0)
+                self.guard.stopped()
                 return {}
+            if op == "set_velocity":
+                self._command(VelocityCmd.from_dict(args), rpc=True)
+                return {}
+            if op == "estop":
+                self.guard.press()  # latched even while the robot does not answer (ARCOS stops then)
+                try:
+                    self._velocity(0.0, 0.0)
+                except RpcError:
+                    pass
+                return {"estop": True}
+            if op == "release":
+                self.guard.release()
+                return {"estop": False}
             if op == "status":
                 connected = self.link is not None and self.link.connected
                 return {"connected": connected, "robot": list(self.ident or ()), **self.stats}

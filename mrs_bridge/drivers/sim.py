@@ -8,7 +8,8 @@
 - ``sim`` (alias ``stage``) binds one robot model (``model``) and provides its ``position2d``
   (odometry pose, or ground truth with ``localization = "gps"``), ``ranger:i`` (the model's i-th
   ranger), ``sonar`` and ``laser`` (its first sonar / laser ranger), ``blobfinder``, ``gripper``
-  and ``power`` (a simulated battery).
+  and ``power`` (a simulated battery). Its ``position2d`` stops the robot when velocity commands
+  stop for ``cmd_timeout`` s and latches an emergency stop (:mod:`mrs_bridge.baseguard`).
 - ``mapfile`` (:mod:`mrs_bridge.drivers.mapfile`) serves the floorplan as a map.
 """
 
@@ -38,6 +39,7 @@ from rsal.msgs import (
     get_vec,
 )
 
+from ..baseguard import ESTOP_OPS, BaseGuard
 from ..config import ConfigError
 from ..driver import Deferred, Driver, OutOfRange, register
 
@@ -96,6 +98,7 @@ class SimulationDriver(Driver):
 
     def update(self, now: float) -> None:
         w = self.world
+        self._check_timeouts()
         if w.advance():
             for d in self.server.drivers_of(SimDriver):
                 self.server.call_driver(d, d.on_step, w)
@@ -105,6 +108,11 @@ class SimulationDriver(Driver):
             rtf = (w.time - self._sim0) / wall if wall > 0 else 0.0
             for a in self.cfg.provides:
                 self.publish(a, SimulationData(w.time, w.steps, w.paused, rtf))
+
+    def _check_timeouts(self) -> None:
+        """The robots' command timeouts, before the next step moves anyone (cheap: a clock read per robot)."""
+        for d in self.server.drivers_of(SimDriver):
+            d.check_timeout()
 
     def ops(self, addr):
         return ["get_pose", "set_pose", "models", "pause", "step", "reset", "remove_model"]
@@ -160,6 +168,7 @@ class SimulationDriver(Driver):
         def work():
             w = self.world
             t_end = time.perf_counter() + STEP_SLICE
+            self._check_timeouts()  # commands that stopped arriving stop their robots, slice by slice
             while left[0] > 0:
                 w.step()
                 left[0] -= 1
@@ -233,6 +242,12 @@ class SimDriver(Driver):
         self.battery = float(cfg.param("battery_percent", 100.0))
         self._last_power = -math.inf
         self.motors = True
+        self.guard = BaseGuard.for_driver(self, self.cfg.provides[0].node)
+
+    def check_timeout(self) -> None:
+        """Stop the robot if its velocity command was not refreshed within ``cmd_timeout``."""
+        if self.guard.expired() and self.model in self.world.model_names:
+            self.world.halt(self.model)
 
     def publish_rate(self, addr) -> float:
         if addr.interface == "power":
@@ -251,7 +266,8 @@ class SimDriver(Driver):
             iface = a.interface
             if iface == "position2d":
                 pose = w.get_pose(self.model) if self.gps else w.odometry(self.model)
-                self.publish(a, Position2dData(t, pose, (v, 0.0, om), w.stalled(self.model)))
+                g = self.guard
+                self.publish(a, Position2dData(t, pose, (v, 0.0, om), w.stalled(self.model), g.timed_out, g.estop))
             elif iface in ("ranger", "sonar", "laser"):
                 r = w.ranger(self.model, self._src[a])
                 if r is None or self._last_scan.get(a) == r.time:
@@ -317,24 +333,26 @@ class SimDriver(Driver):
     # ------------------------------------------------------------------ commands
     def on_cmd(self, addr, msg):
         if addr.interface == "position2d":
-            c = VelocityCmd.from_dict(msg)
-            vmax, wmax = self.spec.max_speed
-            if abs(c.v) > vmax + 1e-9 or abs(c.w) > wmax + 1e-9:
-                raise OutOfRange(
-                    f"v={c.v:g} m/s, w={c.w:g} rad/s exceeds the limits |v| <= {vmax:g}, |w| <= {wmax:.3g}"
-                )
-            if c.vy != 0.0:
-                raise OutOfRange(f"vy={c.vy:g}: a differential drive cannot move sideways")
-            if self.motors:
-                self.world.set_velocity(self.model, c.v, c.w)
+            self._velocity(VelocityCmd.from_dict(msg))
         elif addr.interface == "gripper":
             self.world.gripper_command(self.model, GripperCmd.from_dict(msg).action, addr.index)
         else:
             raise MessageError(f"{addr} takes no commands")
 
+    def _velocity(self, c: VelocityCmd, *, rpc: bool = False) -> None:
+        vmax, wmax = self.spec.max_speed
+        if abs(c.v) > vmax + 1e-9 or abs(c.w) > wmax + 1e-9:
+            raise OutOfRange(f"v={c.v:g} m/s, w={c.w:g} rad/s exceeds the limits |v| <= {vmax:g}, |w| <= {wmax:.3g}")
+        if c.vy != 0.0:
+            raise OutOfRange(f"vy={c.vy:g}: a differential drive cannot move sideways")
+        self.guard.check(rpc=rpc)
+        if self.motors:
+            self.guard.command(c.v, c.w)
+            self.world.set_velocity(self.model, c.v, c.w)
+
     def ops(self, addr):
         if addr.interface == "position2d":
-            return ["set_odom", "motor_power", "stop"]
+            return ["set_odom", "motor_power", "stop", *ESTOP_OPS]
         if addr.interface == "gripper":
             return ["open", "close", "up", "down", "stop"]
         if addr.interface in ("ranger", "sonar", "laser"):
@@ -356,10 +374,22 @@ class SimDriver(Driver):
                 self.motors = get_bool(args, "on")
                 if not self.motors:
                     w.set_velocity(self.model, 0.0, 0.0)
+                    self.guard.stopped()
                 return {"on": self.motors}
             if op == "stop":
                 w.set_velocity(self.model, 0.0, 0.0)
+                self.guard.stopped()
                 return {}
+            if op == "set_velocity":
+                self._velocity(VelocityCmd.from_dict(args), rpc=True)
+                return {}
+            if op == "estop":
+                self.guard.press()
+                w.halt(self.model)
+                return {"estop": True}
+            if op == "release":
+                self.guard.release()
+                return {"estop": False}
         if addr.interface == "gripper":
             w.gripper_command(self.model, op, addr.index)
             st = w.gripper(self.model, addr.index)

@@ -250,3 +250,61 @@ def test_argument_values_are_shown_as_yaml_that_set_reads_back():
 
     for v in (1.0, 60, "r0", True, [1, 2], {"a": 1}, "yes", 1e20, ""):
         assert parse_set([f"k={_yaml_text(v)}"])["k"] == v
+
+
+def test_stop_all_latches_every_robot_against_a_running_scenario(procs, tmp_path, fabric_factory):
+    """The page's "Stop all" (POST /api/estop) overrides a running scenario's agent: judged on the
+    simulator's true pose while the agent keeps commanding; the release lets it drive again."""
+    import time
+
+    text = (SCENARIOS / "wander.yaml").read_text().replace("../../maps", str(ROOT / "maps"))
+    text = text.replace("duration: 20", "duration: 600").replace("timeout: 120", "timeout: 700")
+    (tmp_path / "wander.yaml").write_text(text)
+    port, fport = free_port(), free_port()
+    procs(
+        rsal_cmd(
+            "control",
+            "--port",
+            str(port),
+            "--listen",
+            f"tcp/127.0.0.1:{fport}",
+            "--no-watch",
+            "--scenarios",
+            str(tmp_path),
+        )
+    )
+    base = f"http://127.0.0.1:{port}"
+
+    def up():
+        try:
+            return call(base, "GET", "/api/state")[0] == 200
+        except OSError:
+            return False
+
+    wait_until(up, 60, "rsal control serving", interval=0.2)
+    status, run = call(base, "POST", "/api/runs", body={"scenario": "wander", "app": "wallfollow", "set": {}})
+    assert status == 200, run
+    fab = fabric_factory(fport)
+    wait_until(lambda: "wf0" in call(base, "GET", "/api/state")[1]["agents"], 180, "agent wf0", interval=0.3)
+    sim = fab.device("sim:simulation:0")
+
+    def moving() -> bool:
+        a = sim.rpc("get_pose", name="r0")["pose"]
+        time.sleep(0.25)
+        b = sim.rpc("get_pose", name="r0")["pose"]
+        return max(abs(x - y) for x, y in zip(a, b, strict=True)) > 1e-4
+
+    wait_until(moving, 60, "r0 to be driven by the scenario's agent (ground truth)")
+    assert_one_line_error(*call(base, "POST", "/api/estop", body={"release": "yes"}), 400, "true or false")
+    status, r = call(base, "POST", "/api/estop", body={})
+    assert status == 200 and r["ok"] and r["robots"] == ["r0"] and r["note"].startswith("latched: r0"), r
+    assert not moving() and not moving()  # the agent keeps commanding; the robot stays stopped
+    assert "wf0" in call(base, "GET", "/api/state")[1]["agents"]
+    status, r = call(base, "POST", "/api/estop", body={"release": True})
+    assert status == 200 and r["note"].startswith("released: r0"), r
+    wait_until(moving, 10, "r0 to drive again after the release")
+    status, r = call(base, "POST", "/api/robots/r0/estop", body={})
+    assert status == 200 and r["robots"] == ["r0"], r
+    assert not moving()
+    call(base, "POST", "/api/robots/r0/estop", body={"release": True})
+    call(base, "POST", f"/api/runs/{run['id']}/stop", body={})

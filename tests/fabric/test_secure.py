@@ -143,3 +143,39 @@ def test_a_viewer_watches_but_cannot_drive_and_the_fleet_can(secured):
     finally:
         viewer.close()
         fleet.close()
+
+
+def test_a_viewer_may_press_the_emergency_stop_and_only_the_fleet_releases_it(secured):
+    from rsal.estop import estop
+
+    out, _, router, sim = secured
+    viewer = open_session(TransportArgs(config=str(out / "viewer.json5")))
+    fleet = open_session(TransportArgs(config=str(out / "fleet.json5")))
+    try:
+        seen = Odometry(viewer)
+        wait_until(lambda: seen.count >= 3, 60, "the viewer to receive r0's odometry through the router")
+        turn = encode(VelocityCmd(0.3, 0.8))
+        start = seen.last
+
+        def moved() -> bool:
+            fleet.put(cmd_key(BASE), turn)
+            return _travel(start, seen.last) > 0.05
+
+        wait_until(moved, 20, "the fleet's command to move r0", interval=0.1)
+        pressed = wait_until(lambda: estop(viewer).robots, 20, "the viewer's emergency stop to be confirmed")
+        assert pressed == ["r0"]
+        assert estop(viewer, release=True).robots == [], "a viewer released the emergency stop"
+        wait_until(lambda: seen.last.estop, 10, "r0 to report estop")
+        start, n0 = seen.last, seen.count
+        while seen.count < n0 + 10:  # the fleet commands on: r0 stays where it is
+            fleet.put(cmd_key(BASE), turn)
+            wait_until(lambda n=seen.count: seen.count > n, 10, "odometry to keep arriving")
+        assert _travel(start, seen.last) < 1e-3, "a latched base moved"
+        assert estop(fleet, release=True).robots == ["r0"]
+        start = seen.last
+        wait_until(moved, 20, "r0 to move again after the fleet's release", interval=0.1)
+        fleet.put(cmd_key(BASE), encode(VelocityCmd(0.0, 0.0)))
+        assert router.alive() and sim.alive(), sim.output()
+    finally:
+        viewer.close()
+        fleet.close()

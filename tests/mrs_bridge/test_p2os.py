@@ -8,6 +8,7 @@ import logging
 import math
 import struct
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
@@ -243,14 +244,15 @@ def test_velocity_command_moves_the_odometry(robot, served):
     pos = fab.device("r0:position2d:0")
     start = pos.wait_for_data(10)
     assert start.pose == pytest.approx((0.0, 0.0, 0.0))  # the counters start near their wrap: no jump
-    pos.send(VelocityCmd(0.3, 0.0))
+    pos.set_velocity(0.3, 0.0)  # held: re-sent inside the base's command timeout
     wait_until(lambda: pos.latest.pose[0] > 0.2, 10, "odometry to move 0.2 m forward")
     assert pos.latest.vel[0] == pytest.approx(0.3, abs=0.01) and abs(pos.latest.pose[1]) < 0.01
     assert 300 in robot.commands(p2os.VEL)
-    pos.send(VelocityCmd(0.0, math.radians(45)))
+    pos.set_velocity(0.0, math.radians(45))
     wait_until(lambda: pos.latest.pose[2] > 0.3, 10, "odometry to turn")
     assert robot.commands(p2os.RVEL)[-1] == 45
     pos.send(VelocityCmd(5.0, 0.0))  # over the p2dx limit: rejected, nothing changes
+    pos.stop()  # no longer held
     pos.rpc("stop")
     wait_until(lambda: robot.v == 0 and robot.w == 0, 10, "the robot to stop")
     assert 5000 not in robot.commands(p2os.VEL)
@@ -334,3 +336,44 @@ def test_no_robot_on_the_port_keeps_devices_offline(tmp_path: Path, fabric_facto
 def test_sip_dataclass_properties():
     s = Sip(False, 0, 0, 0, 0, 0, 120, 0x0100, 0, ())
     assert s.stalled and not s.motors_enabled and s.volts == 12.0
+
+
+def test_an_unrefreshed_command_times_out_and_the_driver_sends_zero(robot, served):
+    srv, fab, node = served
+    node.wait_for("r0/position2d/0", timeout=15)
+    pos = fab.device("r0:position2d:0")
+    pos.wait_for_data(10)
+    pos.send(VelocityCmd(0.3, 0.0))  # once, never refreshed
+    wait_until(lambda: robot.v == 300, 10, "the robot to drive")
+    t0 = time.monotonic()
+    wait_until(lambda: robot.v == 0 and robot.w == 0, 2, "the driver to send zero velocity after cmd_timeout")
+    assert 0.4 <= time.monotonic() - t0 <= 0.5 + 0.3
+    assert robot.commands(p2os.VEL)[-1] == 0 and robot.commands(p2os.RVEL)[-1] == 0
+    wait_until(lambda: pos.latest.timed_out, 2, "the data to say timed_out")
+    pos.send(VelocityCmd(0.2, 0.0))
+    wait_until(lambda: robot.v == 200 and not pos.latest.timed_out, 2, "the next command to clear timed_out")
+    pos.rpc("stop")
+
+
+def test_emergency_stop_latches_refuses_and_releases(robot, served, caplog):
+    caplog.set_level(logging.WARNING, logger="mrs_bridge")
+    srv, fab, node = served
+    node.wait_for("r0/position2d/0", timeout=15)
+    pos = fab.device("r0:position2d:0")
+    pos.wait_for_data(10)
+    pos.set_velocity(0.3, 0.0)
+    wait_until(lambda: robot.v == 300, 10, "the robot to drive")
+    assert pos.estop() == {"ok": True, "estop": True}
+    wait_until(lambda: robot.v == 0 and pos.latest.estop, 2, "the robot to stop and report estop")
+    pos.send(VelocityCmd(0.3, 0.0))
+    with pytest.raises(RpcError) as e:
+        pos.rpc("set_velocity", v=0.3, w=0.0)
+    assert e.value.code == ErrorCode.ESTOP
+    wait_until(
+        lambda: any("latched" in r.message and "rejected cmd" in r.message for r in caplog.records), 2, "a warning"
+    )
+    assert robot.v == 0
+    assert pos.release_estop() == {"ok": True, "estop": False}
+    pos.rpc("set_velocity", v=0.2, w=0.0)
+    wait_until(lambda: robot.v == 200 and not pos.latest.estop, 2, "the robot to drive after the release")
+    pos.stop()

@@ -83,6 +83,12 @@ class FakeFabric:
     def send(self, addr, msg) -> None:
         self.sent.append((addr, msg))
 
+    def hold(self, addr, msg) -> None:  # as Fabric.hold: sent now (the re-sends are not modelled)
+        self.sent.append((addr, msg))
+
+    def release(self, addr) -> None:
+        pass
+
     def _forget(self, addr) -> None:
         self._proxies.pop(addr, None)
 
