@@ -138,10 +138,13 @@ class _Entity:
     def undeclare(self) -> None:
         pass
 
+    def put(self, payload, **kw) -> None:  # a publisher's put: published into nothing
+        pass
+
 
 class FakeSession:
-    """Just enough of a Zenoh session for ``DeviceServer.start()`` without a network: every
-    declaration succeeds and does nothing; the liveliness tokens declared are recorded."""
+    """Just enough of a Zenoh session for ``DeviceServer.start()`` and a few scheduler passes without a
+    network: every declaration succeeds and does nothing; the liveliness tokens declared are recorded."""
 
     def __init__(self) -> None:
         self.tokens: list[str] = []
