@@ -22,6 +22,8 @@ from pathlib import Path
 
 import pytest
 
+from rsal.client import Fabric
+from rsal.transport import TransportArgs
 from tests.conftest import free_port, rsal_cmd, wait_until
 
 CHROMIUM = "/usr/bin/chromium"
@@ -37,6 +39,7 @@ FLAGS = [
     "--disable-sync",
 ]
 AGENTS = ("hunter1", "hunter2", "prey0")
+ROBOTS = ("r0", "r1", "r2")  # maps/hunt.world
 
 
 def _ensure_chromium() -> None:
@@ -169,6 +172,34 @@ def test_page_starts_hunt_and_prey_shows_agents_and_rerun_view_and_stops_it(proc
             shot = _save(page, tmp_path, "control-hunt-running.png")
             mark("screenshot")
             assert shot.stat().st_size > 10_000
+
+            # Stop all: the emergency stop of every base, whatever the scenario's agents command (ground truth)
+            with page.expect_response(lambda r: r.url.endswith("/api/estop"), timeout=30_000) as resp:
+                page.click("#estop-all")
+            assert resp.value.status == 200, resp.value.text()
+            mark("stop all")
+            with Fabric.connect(TransportArgs(connect=[fabric])) as fab:
+                fab.node("sim:simulation:0").wait_for("sim:simulation:0", 1, timeout=10)
+                sim = fab.device("sim:simulation:0")
+
+                def truth() -> dict:
+                    return {n: sim.get_pose(n) for n in ROBOTS}
+
+                time.sleep(0.5)  # the sampling interval of the ground truth (a base stops before it answers)
+                a = truth()
+                time.sleep(1.0)
+                b = truth()
+                moved = {n: math.hypot(b[n].x - a[n].x, b[n].y - a[n].y) for n in ROBOTS}
+                assert all(d < 0.01 for d in moved.values()), f"robots moved after Stop all: {moved}"
+                with page.expect_response(lambda r: r.url.endswith("/api/estop"), timeout=30_000) as resp:
+                    page.click("#estop-release-all")
+                assert resp.value.status == 200, resp.value.text()
+                wait_until(
+                    lambda: any(math.hypot(p.x - b[n].x, p.y - b[n].y) > 0.05 for n, p in truth().items()),
+                    30,
+                    "a robot to move again after Release all (its agent still commands it)",
+                )
+                mark("released")
 
             page.click('.run[data-run="1"] button.stop')
             none_left = "ids => ids.every(id => !document.querySelector(`#agents li[data-agent='${id}']`))"

@@ -1,6 +1,7 @@
 """A watcher for multi-host tests: prints, as JSON lines on stdout, every device that joins or leaves
 the fabric (``{"t": s, "join": "r1:planner:0"}``) and, every ``--every`` seconds, the latest
-position2d poses it receives (``{"t": s, "poses": {"r1:position2d:2": [x, y, yaw]}}``).
+position2d poses it receives (``{"t": s, "poses": {"r1:position2d:2": [x, y, yaw]}}``) and, with
+``--truth r1,r2``, those robots' true poses from the simulation (``{"t": s, "truth": {"r1": [x, y, yaw]}}``).
 
     python tests/fabric/netwatch.py --connect tcp/10.77.0.1:7447 --template '*:*:*'
 """
@@ -23,6 +24,7 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--template", default="*:*:*")
     ap.add_argument("--every", type=float, default=0.5)
+    ap.add_argument("--truth", type=lambda t: [n for n in t.split(",") if n], default=[])
     add_transport_args(ap)
     args = ap.parse_args()
     lock = threading.Lock()
@@ -57,6 +59,16 @@ def main() -> int:
                 with lock:
                     snap = dict(poses)
                 say(poses=snap)
+                if args.truth and node.is_alive("sim:simulation:0"):
+                    truth = {}
+                    for name in args.truth:
+                        try:
+                            truth[name] = [
+                                round(v, 4) for v in fab.device("sim:simulation:0").get_pose(name).as_tuple()
+                            ]
+                        except Exception:  # a slow answer: this round goes without it
+                            pass
+                    say(truth=truth)
         except KeyboardInterrupt:
             pass
         finally:

@@ -9,7 +9,9 @@ simulator host, two robot hosts and an agent host on one LAN.
   on r0, hunters on r1 and r2) and a watcher of the whole fabric (tests/fabric/netwatch.py).
 
 While the hunt runs, robot host 2's cable is pulled: r2's devices are reported lost within the
-configured Zenoh lease (plus the keep-alive slack), while r1's devices stay and r1 keeps driving;
+configured Zenoh lease (plus the keep-alive slack), r2's base, on the simulator host, stops by its
+command timeout once its local planner's commands no longer arrive (simulator ground truth), while
+r1's devices stay and r1 keeps driving;
 when the cable is back, r2's devices return without any process being restarted, and the hunt
 ends with the prey caught. Skipped, with the reason, where
 namespaces cannot be made (not root, no iproute2).
@@ -82,6 +84,10 @@ class Watch:
                 devs.discard(e["leave"])
         return devs
 
+    def truths(self, robot: str) -> list[list[float]]:
+        """The robot's true poses from the simulation, oldest first (one every half second)."""
+        return [e["truth"][robot] for e in self.events() if "truth" in e and robot in e["truth"]]
+
     def pose(self, addr: str) -> list[float] | None:
         for e in reversed(self.events()):
             if "poses" in e and addr in e["poses"]:
@@ -122,7 +128,15 @@ def test_a_robot_host_cut_off_is_lost_the_others_continue_and_it_rejoins(lan, tm
         watch = Watch(
             start(
                 "agents",
-                [sys.executable, str(ROOT / "tests" / "fabric" / "netwatch.py"), "--connect", sim_ep, *TUNING],
+                [
+                    sys.executable,
+                    str(ROOT / "tests" / "fabric" / "netwatch.py"),
+                    "--connect",
+                    sim_ep,
+                    "--truth",
+                    "r1,r2",
+                ]
+                + TUNING,
             )
         )
         stack = {f"{r}:{d}" for r in ("r1", "r2") for d in ("planner:0", "localize:0", "position2d:1", "position2d:2")}
@@ -136,12 +150,22 @@ def test_a_robot_host_cut_off_is_lost_the_others_continue_and_it_rejoins(lan, tm
         start_pose = watch.pose("r1:position2d:0")
         wait_until(lambda: moved(watch.pose("r1:position2d:0"), start_pose) > 0.2, 120, "the hunter r1 to start moving")
 
+        before = watch.truths("r2")
         lan.cut("robot2")
         t_cut = time.monotonic()
+        # r2's base lost its commander (the local planner on the cut host): its command timeout (0.5 s)
+        # stops it. Ground truth from 1.5 s after the cut on (the timeout plus the polls' spacing).
+        wait_until(lambda: len(watch.truths("r2")) >= len(before) + 8, 30, "r2's true pose after the cut")
+        after = watch.truths("r2")[len(before) + 3 :]
+        drift = max(moved(p, after[0]) for p in after)
+        was_moving = len(before) >= 2 and moved(before[-1], before[-2]) > 0.02
+        assert drift < 0.02, (
+            f"r2 kept moving {drift:.2f} m after its commands stopped (moving at the cut: {was_moving})"
+        )
         r2_stack = {a for a in stack if a.startswith("r2:")}
         wait_until(
             lambda: not (r2_stack & watch.alive()),
-            LEASE_MS / 1000 * 2 + 5,
+            LEASE_MS / 1000 * 2 + 5 - (time.monotonic() - t_cut),  # counted from the cut
             "robot host 2's devices to be reported lost after its link went down",
         )
         lost_after = time.monotonic() - t_cut
@@ -162,7 +186,10 @@ def test_a_robot_host_cut_off_is_lost_the_others_continue_and_it_rejoins(lan, tm
         wait_until(lambda: not hunt.alive(), 300, "the hunt to end")
         assert hunt.p.returncode == 0, hunt.output()[-3000:]
         assert re.search(r"prey r0 caught by r[12] after", hunt.output()), hunt.output()[-2000:]
-        print(f"r2 lost {lost_after:.1f} s after the cut (lease {LEASE_MS / 1000:g} s)")
+        print(
+            f"r2 lost {lost_after:.1f} s after the cut (lease {LEASE_MS / 1000:g} s); r2 moving at the cut: "
+            f"{was_moving}, moved {drift:.3f} m from 1.5 s after it"
+        )
     finally:
         for p in procs:
             p.close()
