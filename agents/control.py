@@ -56,6 +56,8 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
+from rsal.procs import spawn
+
 __all__ = ["ApiError", "Control", "map_png", "register", "run_control"]
 
 log = logging.getLogger(__name__)
@@ -112,7 +114,7 @@ class ChildProcess:
         self.stopping = False
         self.stopped_by_user = False
         self.on_line = on_line  # called with each output line, on the reader thread
-        self.p = subprocess.Popen(
+        self.p = spawn(  # dies with the control center, although started on a request's thread
             argv,
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,

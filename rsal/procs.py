@@ -6,8 +6,9 @@ which is when its parent process exits, however it exits (SIGTERM, Ctrl-C, SIGKI
 child whose parent died before the request took effect exits at once. Elsewhere than on Linux
 it returns no arguments and children are stopped by their parent's own clean-up only.
 
-Start children from the main thread (or a thread that lives as long as the process): Linux sends
-the signal when the *thread* that forked the child ends.
+Linux sends the signal when the *thread* that forked the child ends, so a child must be started by
+the main thread or a thread that lives as long as the process: :func:`spawn` does that for code
+that runs on short-lived threads (an HTTP server's request threads).
 """
 
 from __future__ import annotations
@@ -15,10 +16,13 @@ from __future__ import annotations
 import ctypes
 import os
 import signal
+import subprocess
 import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
-__all__ = ["die_with_parent"]
+__all__ = ["die_with_parent", "spawn"]
 
 _PR_SET_PDEATHSIG = 1
 
@@ -37,3 +41,21 @@ def die_with_parent(sig: int = signal.SIGTERM) -> dict[str, Any]:
             os.kill(os.getpid(), sig)
 
     return {"preexec_fn": preexec}
+
+
+_launcher: ThreadPoolExecutor | None = None
+_launcher_lock = threading.Lock()
+
+
+def spawn(args, **kw: Any) -> subprocess.Popen:
+    """:class:`subprocess.Popen` with :func:`die_with_parent`, forked by the main thread when called on
+    it, else by one launcher thread that lives as long as the process (so the child is not signalled
+    when the calling thread ends)."""
+    global _launcher
+    kw.update(die_with_parent())
+    if threading.current_thread() is threading.main_thread():
+        return subprocess.Popen(args, **kw)
+    with _launcher_lock:
+        if _launcher is None:
+            _launcher = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rsal-launcher")
+    return _launcher.submit(subprocess.Popen, args, **kw).result()
