@@ -827,7 +827,11 @@ class _StageLoader:
             _check(v >= 0, p, "kilograms >= 0", "mass 23.0")
             m.mass = v
         if (p := inst.latest("laser_return", "ranger_return")) is not None:
-            m.laser_return = _bool(p, levels=True)
+            if p.key == "ranger_return":  # Stage 4: a float; rangers see the model when it is >= 0
+                v = _num(p, "a number (>= 0: seen by rangers, < 0: invisible to them)", "ranger_return 1")
+                m.laser_return = v >= 0.0
+            else:  # Stage 3: 0 invisible, 1 visible, 2 bright
+                m.laser_return = _bool(p, levels=True)
         for key in ("obstacle_return", "blob_return", "gripper_return"):
             if (p := P.get(key)) is not None:
                 setattr(m, key, _bool(p))

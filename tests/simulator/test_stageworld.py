@@ -187,6 +187,23 @@ def test_world_clock_keywords(tmp_path, text, interval, speedup):
     assert spec.models == [] and spec.floorplan is None  # no robots is fine
 
 
+def test_stage4_ranger_return_is_a_float_seen_when_not_negative(tmp_path):
+    text = "".join(f'model ( name "{n}" ranger_return {v} )\n' for n, v in (("a", 0.5), ("b", 0), ("c", -1), ("d", 1)))
+    spec = load_stage_world(write(tmp_path / "w.world", text))
+    assert not spec.warnings
+    seen = {n: spec.model(n).laser_return for n in "abcd"}
+    assert seen == {"a": True, "b": True, "c": False, "d": True}
+
+
+def test_the_return_flag_set_last_wins(tmp_path):
+    p = write(
+        tmp_path / "w.world",
+        'model ( name "a" laser_return 0 ranger_return 0.5 )\nmodel ( name "b" ranger_return 1 laser_return 0 )\n',
+    )
+    spec = load_stage_world(p)
+    assert spec.model("a").laser_return is True and spec.model("b").laser_return is False
+
+
 def test_stage3_laser_return_levels(tmp_path):
     p = write(tmp_path / "w.world", 'model ( name "a" laser_return 2 )\nmodel ( name "b" laser_return 0 )\n')
     spec = load_stage_world(p)
