@@ -10,6 +10,7 @@ import pytest
 import mrs_bridge.drivers.sim  # noqa: F401  (registers the sim drivers)
 from mrs_bridge.baseguard import BaseGuard, Latched
 from mrs_bridge.config import ConfigError, parse_config
+from mrs_bridge.driver import Deferred
 from mrs_bridge.server import DeviceServer
 from rsal.keys import parse_device
 from rsal.msgs import ErrorCode, Position2dData, RpcError, decode_map
@@ -138,7 +139,10 @@ def _data(session) -> Position2dData:
 
 
 def _step(simulation, n: int = 5) -> None:
-    simulation.on_rpc(parse_device("sim:simulation:0"), "step", {"n": n})
+    """``rpc/step`` run to its end, as the server runs it (a long step comes back as slices)."""
+    res = simulation.on_rpc(parse_device("sim:simulation:0"), "step", {"n": n})
+    while isinstance(res, Deferred):
+        res = res.step() or res
 
 
 def test_sim_base_stops_when_commands_stop_and_says_so(sim):
