@@ -142,7 +142,7 @@ class FakeServer:
     def request(self, driver, addr, op, args, timeout):
         self.requests.append((str(addr), op, args))
 
-    def _warn(self, key, text):
+    def _warn(self, key, text, level=None):
         pass
 
 
