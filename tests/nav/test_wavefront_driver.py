@@ -36,6 +36,7 @@ class FakeServer:
         self.published: list = []
         self.requests: list[tuple[str, str]] = []
         self.shared: dict = {}
+        self.warnings: list[str] = []
 
     def send(self, addr, msg):
         self.sent.append((str(addr), msg))
@@ -48,6 +49,9 @@ class FakeServer:
 
     def request(self, driver, addr, op, args, timeout):
         self.requests.append((str(addr), op))
+
+    def _warn(self, key, text, level=None):  # the server's rate-limited log
+        self.warnings.append(text)
 
 
 def room() -> dict:
