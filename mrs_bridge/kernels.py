@@ -17,7 +17,7 @@ import sys
 import threading
 import time
 
-__all__ = ["GROUPS", "prepare", "prepare_all"]
+__all__ = ["GROUPS", "prepare"]
 
 #: group name -> (module path, what it holds)
 GROUPS = {
@@ -67,11 +67,3 @@ def prepare(group: str, *, label: str = "serve", out=None, notice_after: float |
             print(f"[{label}] kernels of {what} ready in {dt:.1f} s (cached for later runs)", file=stream, flush=True)
         _ready.add(group)
         return dt
-
-
-def prepare_all(*, label: str = "setup", out=None) -> float:
-    """Prepare every group (``rsal warmup``); returns the total seconds."""
-    total = 0.0
-    for group in GROUPS:
-        total += prepare(group, label=label, out=out)
-    return total
