@@ -252,7 +252,7 @@ class NavRobot(Robot):
         self.localized: Position2d | None = None
         for d in base:
             try:
-                if d.describe(timeout=2.0).geometry.get("frame") == "map":
+                if d.describe(timeout=5.0).geometry.get("frame") == "map":
                     self.localized = d
                     break
             except Exception as e:  # a silent device is simply not used

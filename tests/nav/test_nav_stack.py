@@ -28,6 +28,8 @@ def nav_robot(fab, timeout: float = 30.0):
     node = fab.node("r0:*:*", "sim:*:*")
     node.wait_for("r0:planner:0", 1, timeout)
     node.wait_for("r0:localize:0", 1, timeout)
+    # amcl's two devices (localize:0, position2d:2) are two tokens: wait for both, not the first
+    node.wait_for("r0:position2d:*", 3, timeout)
     devs = robot_devices(node, "r0")
     robot = NavRobot(devs)
     sim = fab.device("sim:simulation:0")
