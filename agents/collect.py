@@ -26,7 +26,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-import time
 from collections.abc import Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
@@ -34,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rsal.client import Fabric
+from rsal.clock import clock, wait_for
 from rsal.data import BlobfinderBlob, Board, BoardObject, Position, normalize_angle
 from rsal.devices import Simulation
 from rsal.msgs import MapData, MessageError, RpcError, get_float, get_int, get_str
@@ -271,13 +271,13 @@ class CollectAgent(RobotAgent):
     async def _pose(self, timeout: float) -> Position | None:
         """The robot's first pose on the map (from its localizer, not its odometry)."""
         r: NavRobot = self.pioneer  # type: ignore[assignment]
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
+        deadline = clock().now() + timeout
+        while clock().now() < deadline:
             if r.localized is not None and r.localized.latest is not None:
                 return r.localized.position
             if r.localize is not None and getattr(r.localize, "position", None) is not None:
                 return r.localize.position
-            await asyncio.sleep(0.1)
+            await clock().asleep(0.1)
         return None
 
     # ------------------------------------------------------------------ tasks
@@ -294,7 +294,7 @@ class CollectAgent(RobotAgent):
 
     def bid(self, task: dict):
         """Contract net: the straight-line distance to the blob, or None (refuse) when busy."""
-        now = time.monotonic()
+        now = clock().now()
         outstanding = self.cnp is not None and any(v == "proposed" for v in self.cnp.outcomes.values())
         if self.busy is not None or (outstanding and now - self._last_bid < 10.0):
             return None  # one blob at a time: no second offer while a proposal awaits its answer
@@ -330,7 +330,7 @@ class CollectAgent(RobotAgent):
         if self.busy is not None:
             return FetchResult(False, f"busy with {self.busy}")
         self.busy = blob
-        t0 = time.monotonic()
+        t0 = clock().now()
         try:
             res = await self._fetch(blob, Position(x, y))
         except Exception as e:  # a device vanished, an rpc failed: report, stay usable
@@ -345,7 +345,7 @@ class CollectAgent(RobotAgent):
             self.id,
             blob,
             "delivered" if res.ok else "not delivered",
-            time.monotonic() - t0,
+            clock().now() - t0,
             "" if res.ok else f": {res.reason}",
         )
         if not res.ok:
@@ -451,10 +451,10 @@ class CollectAgent(RobotAgent):
         when the local planner dithers over the last centimetres), else the reason."""
         r: NavRobot = self.pioneer  # type: ignore[assignment]
         fut = asyncio.wrap_future(await asyncio.to_thread(r.goto, goal))
-        deadline = time.monotonic() + self.goto_timeout
+        deadline = clock().now() + self.goto_timeout
         near_since = None
         while not fut.done():
-            now = time.monotonic()
+            now = clock().now()
             if now > deadline:
                 await self._safe_stop()
                 return f"goal ({goal.x:.1f}, {goal.y:.1f}) not reached: timed out after {self.goto_timeout:g} s"
@@ -466,7 +466,7 @@ class CollectAgent(RobotAgent):
                     return ""
             else:
                 near_since = None
-            await asyncio.wait([fut], timeout=0.2)
+            await asyncio.wait([fut], timeout=clock().wall(0.2))
         try:
             fut.result()
         except RpcError as e:
@@ -480,14 +480,14 @@ class CollectAgent(RobotAgent):
         base = r.position2d
         start = base.position
         limit = self.approach + 0.6
-        deadline = time.monotonic() + 40.0
-        while time.monotonic() < deadline:
+        deadline = clock().now() + 40.0
+        while clock().now() < deadline:
             if g.beams:
                 await asyncio.to_thread(base.stop)
                 return True
             here, odo = r.position, base.position
             if here is None or odo is None:
-                await asyncio.sleep(0.1)
+                await clock().asleep(0.1)
                 continue
             if start is not None and odo.distance_to(start) > limit:
                 break
@@ -497,7 +497,7 @@ class CollectAgent(RobotAgent):
             else:
                 v, w = self.creep_speed, max(-0.5, min(0.5, 1.5 * bearing))
             base.set_velocity(v, w, hold=False)  # refreshed by this 10 Hz loop
-            await asyncio.sleep(0.1)
+            await clock().asleep(0.1)
         await asyncio.to_thread(base.stop)
         return bool(g.beams)
 
@@ -517,13 +517,13 @@ class CollectAgent(RobotAgent):
     async def _drive(self, v: float, w: float, dist: float) -> None:
         base = self.pioneer.position2d
         start = base.position
-        deadline = time.monotonic() + dist / max(abs(v), 0.05) + 3.0
-        while time.monotonic() < deadline:
+        deadline = clock().now() + dist / max(abs(v), 0.05) + 3.0
+        while clock().now() < deadline:
             p = base.position
             if start is not None and p is not None and p.distance_to(start) >= dist:
                 break
             base.set_velocity(v, w, hold=False)  # refreshed by this 10 Hz loop
-            await asyncio.sleep(0.1)
+            await clock().asleep(0.1)
         await asyncio.to_thread(base.stop)
 
     async def _safe_stop(self) -> None:
@@ -535,15 +535,15 @@ class CollectAgent(RobotAgent):
     @staticmethod
     async def _wait(fut: Future, timeout: float) -> None:
         try:
-            await asyncio.wait_for(asyncio.wrap_future(fut), timeout)
+            await wait_for(asyncio.wrap_future(fut), timeout)
         except TimeoutError:
             pass
 
     @staticmethod
     async def _until(cond, timeout: float) -> None:
-        deadline = time.monotonic() + timeout
-        while not cond() and time.monotonic() < deadline:
-            await asyncio.sleep(0.05)
+        deadline = clock().now() + timeout
+        while not cond() and clock().now() < deadline:
+            await clock().asleep(0.05)
 
     def status(self) -> str:
         r = self.pioneer
@@ -644,12 +644,12 @@ class MasterAgent(Agent):
 
     async def step(self) -> None:
         loop = asyncio.get_running_loop()
-        now = loop.time()
+        now = clock().now()
         if now >= self._next_discovery and not self._discovering:
             self._next_discovery = now + self.discover_every
             self._discovering = True
             self._require_host().spawn(self._discover(), f"{self.id}: discovery")
-        mono = time.monotonic()
+        mono = clock().now()
         for note in self.blobs("assigned"):
             if mono - note.data.since > self.task_timeout:
                 log.warning("%s: %s: no word from %s; offering it again", self.id, note.data.id, note.data.assignee)
@@ -701,14 +701,14 @@ class MasterAgent(Agent):
             if p is not None and p.distance_to(where) <= self.carry_dist:
                 # a blob in a gripper; remembered, so that the sighting's repeats are not taken as new
                 self.ignored += 1
-                data = _BlobTask(f"carried-{cid}", rep.color, sender, time.monotonic(), where)
+                data = _BlobTask(f"carried-{cid}", rep.color, sender, clock().now(), where)
                 self.board.put(
                     ("carried", self.ignored), BoardObject("blob/carried", position=where, data=data, timeout=0)
                 )
                 return None
         blob_id = f"blob{self._n}"
         self._n += 1
-        data = _BlobTask(blob_id, rep.color, sender, time.monotonic(), where)
+        data = _BlobTask(blob_id, rep.color, sender, clock().now(), where)
         self.board.put(("blob", blob_id), BoardObject("blob/new", position=where, data=data, timeout=0))
         log.info("%s: %s at (%.2f, %.2f) reported by %s", self.id, blob_id, rep.x, rep.y, sender)
         return blob_id
@@ -768,7 +768,7 @@ class MasterAgent(Agent):
             if note.data.retry_at > now:
                 continue
             self._assign(note, "", now)
-            self._bidding_until = loop.time() + self.bid_deadline + 0.5
+            self._bidding_until = clock().now() + self.bid_deadline + 0.5
             self._require_host().spawn(self._contract(note), f"{self.id}: contract for {note.data.id}")
             return  # one call in its bidding phase at a time
 
@@ -783,7 +783,7 @@ class MasterAgent(Agent):
             self._delivered(note, res.winner or "?", d.drop or note.position)
         elif res.outcome == "no_bids":
             d.assignee = ""
-            d.retry_at = time.monotonic() + min(self.retry_after, 3.0)
+            d.retry_at = clock().now() + min(self.retry_after, 3.0)
             self._set_state(note, "new")
         else:
             self._failed(note, res.reason or d.reason or res.outcome)
@@ -806,7 +806,7 @@ class MasterAgent(Agent):
         note.position = drop
         d.assignee = by
         self._set_state(note, "delivered")
-        took = time.monotonic() - d.found
+        took = clock().now() - d.found
         text = f"{d.id} at ({found_at.x:.1f}, {found_at.y:.1f}) delivered home by {by} after {took:.0f} s"
         log.info("%s: %s", self.id, text)
         self.publish(Outcome.SERVICE, Outcome("delivered", d.id, text))
@@ -823,7 +823,7 @@ class MasterAgent(Agent):
             self.retry_after,
         )
         d.assignee = ""
-        d.retry_at = time.monotonic() + self.retry_after
+        d.retry_at = clock().now() + self.retry_after
         self._set_state(note, "new")
 
     def status(self) -> str:

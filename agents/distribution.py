@@ -34,7 +34,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -42,6 +41,7 @@ import numpy as np
 import zenoh
 
 from rsal.client import Fabric
+from rsal.clock import clock, wait_for
 from rsal.data import Board, BoardObject, Position
 from rsal.msgs import MapData
 
@@ -324,8 +324,7 @@ class DispersionAgent(Agent):
     async def discover(self) -> dict[str, str]:
         """Ping with ``hello`` until ``expect`` navigating agents answered with a map position (or
         the first answers, when ``expect`` is 0); returns agent id -> robot."""
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + self.startup_timeout
+        deadline = clock().now() + self.startup_timeout
         while True:
             for h in await self._require_host().who_is_there(self.hello_timeout):
                 self.board.put(("agent", h.id), BoardObject(topic=h.cls, data=h, timeout=0))
@@ -336,14 +335,14 @@ class DispersionAgent(Agent):
                 if o.data.robot and self.position_of(o.data.robot) is not None
             }
             want = self.expect or 1
-            if len(found) >= want or (loop.time() >= deadline and found):
+            if len(found) >= want or (clock().now() >= deadline and found):
                 return found
-            if loop.time() >= deadline:
+            if clock().now() >= deadline:
                 raise TimeoutError(
                     f"{self.id}: {len(found)} of {want} navigating agent(s) ({', '.join(sorted(self.classes))}) "
                     f"answered with a map position within {self.startup_timeout:g} s"
                 )
-            await asyncio.sleep(0.5)
+            await clock().asleep(0.5)
 
     def send_goal(self, agent: str, i: int) -> None:
         x, y = self.targets[i]
@@ -406,7 +405,7 @@ class DispersionAgent(Agent):
                 log.warning("%s: no target left for %s", self.id, a)
         for a, i in sorted(self.assignment.items()):
             self.send_goal(a, i)
-        deadline = time.monotonic() + self.goal_timeout
+        deadline = clock().now() + self.goal_timeout
         assert self._changed is not None
         while True:
             for a, n in list(self.failures.items()):
@@ -415,11 +414,11 @@ class DispersionAgent(Agent):
                     self.send_goal(a, self.assignment[a])
             failed = [a for a, n in self.failures.items() if a in self.assignment and n > self.retries]
             done = self.assignment and all(a in self.arrived for a in self.assignment)
-            if done or failed or time.monotonic() >= deadline or not self.assignment:
+            if done or failed or clock().now() >= deadline or not self.assignment:
                 break
             self._changed.clear()
             try:
-                await asyncio.wait_for(self._changed.wait(), max(0.1, min(1.0, deadline - time.monotonic())))
+                await wait_for(self._changed.wait(), max(0.1, min(1.0, deadline - clock().now())))
             except TimeoutError:
                 pass
         self.verdict = self.judge()

@@ -26,6 +26,7 @@ import argparse
 import asyncio
 import json
 import math
+import os
 import signal
 import sys
 from collections.abc import Callable
@@ -166,6 +167,8 @@ async def serve_agents(
     exit code. ``tag`` prefixes progress lines (``[agent]``, ``[host NAME]``); ``fail(line)`` reports
     an error line; ``name_agents`` puts the agent id in front of its errors."""
     from rsal.client import Fabric
+    from rsal.clock import ENV as clock_env
+    from rsal.clock import clock, sim_time_from_env
     from rsal.transport import open_session
 
     from .runtime import AgentHost
@@ -188,6 +191,14 @@ async def serve_agents(
     for a in agents:
         print(f"{tag} {_starting_line(a)}", flush=True)
     session = await asyncio.to_thread(open_session, targs)
+    sim_clock = sim_time_from_env(session)  # RSAL_SIM_TIME: follow the simulation's clock
+    if sim_clock is not None:
+        print(f"{tag} on the simulation's clock ({clock_env}={os.environ[clock_env]})", flush=True)
+        if not await asyncio.to_thread(sim_clock.wait_started, 60.0):
+            fail(f"no time from the simulation within 60 s (is the simulator running? {clock_env} names its node)")
+            session.close()
+            return 1
+    clk = clock()
     async with AgentHost(session, own_session=True) as host:
         fabrics: dict[str, Fabric] = {}
 
@@ -236,14 +247,14 @@ async def serve_agents(
             robot = f" on robot {a.robot}" if a.robot else ""
             print(f"{tag} {a.id} running: {type(a).__name__}{robot}, token agents/{a.id}", flush=True)
         killed = {a.id: asyncio.ensure_future(host.wait_killed(a)) for a in running}
-        t0 = loop.time()
+        t0 = clk.now()
         reason = ""
         ended: set[str] = set()
         while not reason:
-            left = duration - (loop.time() - t0) if duration else math.inf
+            left = duration - (clk.now() - t0) if duration else math.inf
             await asyncio.wait(
                 {stopping, *(k for aid, k in killed.items() if aid not in ended)},
-                timeout=min(report_every, max(0.0, left)),
+                timeout=min(report_every, max(0.0, clk.wall(left))),
                 return_when=asyncio.FIRST_COMPLETED,
             )
             for a in running:
@@ -255,16 +266,16 @@ async def serve_agents(
                 reason = got[0] if got else "signal"
             elif len(ended) == len(running):
                 reason = "killed" if len(running) == 1 else "all agents ended"
-            elif duration and loop.time() - t0 >= duration:
+            elif duration and clk.now() - t0 >= duration:
                 reason = f"duration {duration:g} s"
             elif left > 0 or not duration:
                 if len(running) <= 4:
                     for a in running:
                         if a.id not in ended:
-                            print(f"{tag} {a.id} t={loop.time() - t0:6.1f} s  {_status(a)}", flush=True)
+                            print(f"{tag} {a.id} t={clk.now() - t0:6.1f} s  {_status(a)}", flush=True)
                 else:
                     n = len(running) - len(ended)
-                    print(f"{tag} t={loop.time() - t0:6.1f} s  {n}/{len(running)} agents running", flush=True)
+                    print(f"{tag} t={clk.now() - t0:6.1f} s  {n}/{len(running)} agents running", flush=True)
         stopping.cancel()
         await asyncio.gather(*(host.kill(a) for a in running))
         for k in killed.values():

@@ -33,6 +33,7 @@ import math
 import time
 from dataclasses import dataclass
 
+from rsal.clock import clock, wait_for
 from rsal.data import Position
 from rsal.msgs import ErrorCode, RpcError
 from rsal.robot import NavRobot, RobotError
@@ -186,14 +187,14 @@ class NavAgent(RobotAgent):
                 await asyncio.sleep(0.3)
 
     async def _drive(self, goal: Position, seq: int, report: bool) -> GoalResult:
-        t0 = time.monotonic()
+        t0 = clock().now()
         try:
             fut = await self._send(goal, seq)
             if fut is None:
                 res = GoalResult("superseded", "a newer goal replaced it", goal)
             else:
                 try:
-                    await asyncio.wait_for(asyncio.wrap_future(fut), self.goal_timeout)
+                    await wait_for(asyncio.wrap_future(fut), self.goal_timeout)
                     res = GoalResult("done", "reached", goal)
                 except TimeoutError:
                     res = GoalResult("timeout", f"not reached within {self.goal_timeout:g} s", goal)
@@ -210,7 +211,7 @@ class NavAgent(RobotAgent):
                         res = GoalResult("failed", str(e), goal)
         except Exception as e:  # the planner could not be asked (timeout, session closing)
             res = GoalResult("failed", f"{type(e).__name__}: {e}", goal)
-        res = GoalResult(res.status, res.message, goal, time.monotonic() - t0)
+        res = GoalResult(res.status, res.message, goal, clock().now() - t0)
         if res.status == "superseded":
             return res
         if seq == self._goal_seq:
@@ -295,7 +296,7 @@ class FollowAgent(NavAgent):
 
     async def created(self) -> None:
         await super().created()
-        self._hunt_start = time.monotonic()
+        self._hunt_start = clock().now()
         self.subscribe(SendPosition.SERVICE, self._on_position)
         self.subscribe(Outcome.SERVICE, self._on_caught, filter=match(event="caught"))
         if self.allocation == "contract_net":
@@ -365,7 +366,7 @@ class FollowAgent(NavAgent):
             await self._look_around()
             if self.hunters and self.hunters[0] == self.id:
                 await self._allocate()
-            await asyncio.sleep(max(1.0, self.replan_interval))
+            await clock().asleep(max(1.0, self.replan_interval))
 
     async def _allocate(self) -> None:
         """The auctioneer's round: share the uncaught prey among the hunters, nearest first."""
@@ -407,7 +408,7 @@ class FollowAgent(NavAgent):
     # ------------------------------------------------------------------ the chase
     async def step(self) -> None:
         await super().step()
-        now = time.monotonic()
+        now = clock().now()
         prey = self.prey
         if not prey or prey in self.caught or self.nav is None:
             return

@@ -37,6 +37,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rsal.cliutil import positive
+from rsal.clock import ENV as clock_env
+from rsal.clock import SimClock
 from rsal.procs import die_with_parent
 
 from .scenario import Application, Scenario, ScenarioError, check_classes, load_scenario, parse_set
@@ -44,7 +46,8 @@ from .scenario import Application, Scenario, ScenarioError, check_classes, load_
 __all__ = ["register", "run_scenario"]
 
 PROG = "rsal run"
-SIM_DEVICE = "rsal/sim/simulation/0"
+SIM_NODE = "sim"  # the node of the simulator that rsal sim serves
+SIM_DEVICE = f"rsal/{SIM_NODE}/simulation/0"
 REPO_ROOT = Path(__file__).resolve().parent.parent
 #: seconds each kind of child gets to exit after SIGTERM before SIGKILL
 STOP_DEADLINES = {"host": 15.0, "server": 10.0, "sim": 10.0}
@@ -161,6 +164,10 @@ class Runner:
         self.phase = "start"
         self.session = None
         self._handles: list = []
+        # The run's clock: wall seconds until the simulation's clock runs, then simulated seconds,
+        # so durations and timeouts mean the same at any speed-up (see _now).
+        self.sim_clock: SimClock | None = None
+        self._sim_base: tuple[float, float] | None = None
         # Zenoh settings every process of the run gets: a --config file (e.g. the secured profile's
         # fleet.json5, which names the endpoints itself) and --cfg entries (e.g. a shorter lease).
         self.zenoh_flags: list[str] = ["--config", args.config] if getattr(args, "config", None) else []
@@ -191,6 +198,8 @@ class Runner:
         targs.config = getattr(self.args, "config", None)
         targs.cfg = list(getattr(self.args, "cfg", None) or [])
         self.session = open_session(targs)
+        if self.app.simulator is not None:
+            self.sim_clock = SimClock().follow(self.session, SIM_NODE)
         q = self.events
 
         def on_outcome(sample) -> None:
@@ -238,7 +247,10 @@ class Runner:
         return env
 
     def _start(self, name: str, kind: str, argv: list[str], shown: str) -> Child:
-        c = Child(name, kind, argv, self._env(), self.out)
+        env = self._env()
+        if kind == "host" and self.app.simulator is not None:
+            env[clock_env] = SIM_NODE  # the agents follow the simulation's clock (rsal.clock)
+        c = Child(name, kind, argv, env, self.out)
         self.children.append(c)
         self.out.say(f"started {name} (pid {c.pid}): {shown}")
         return c
@@ -341,13 +353,24 @@ class Runner:
         elif kind == "device":
             (self.devices.add if what else self.devices.discard)(who)
 
+    def _now(self) -> float:
+        """Seconds of the run: the wall clock until the simulation's clock has started, then that
+        moment plus simulated seconds (a paused simulation pauses durations and timeouts)."""
+        w = time.monotonic()
+        c = self.sim_clock
+        if c is None or not c.started:
+            return w
+        if self._sim_base is None:
+            self._sim_base = (w, c.now())
+        return self._sim_base[0] + (c.now() - self._sim_base[1])
+
     def _count_text(self) -> str:
         e = self.end
         if e.event is not None:
             return f"{e.event} {len(self.tally.subjects.get(e.event, {}))}/{e.count}"
         if self.all_alive_at is None:
             return f"0.0/{e.duration:g} s"
-        return f"{min(e.duration, time.monotonic() - self.all_alive_at):.1f}/{e.duration:g} s"
+        return f"{min(e.duration, self._now() - self.all_alive_at):.1f}/{e.duration:g} s"
 
     def _check(self, now: float, t0: float) -> None:
         """Set ``self.result`` when the run is over."""
@@ -398,7 +421,7 @@ class Runner:
         next_progress = t0 + self.progress
         while self.result is None and not self.signalled:
             self._drain(0.1)
-            now = time.monotonic()
+            now = self._now()
             if self.phase == "sim" and SIM_DEVICE in self.devices:
                 self.out.say(f"simulator up after {now - t0:.1f} s: {len(self.devices)} device(s)")
                 self._start_rest(tmp)
@@ -417,7 +440,8 @@ class Runner:
             self.signalled.append(signal.Signals(signum).name)
 
         old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-        t0 = time.monotonic()
+        t0 = self._now()
+        wall0 = time.monotonic()
         desc = f" ({self.app.description})" if self.app.description else ""
         where = self.endpoint or f"as configured in {self.args.config}"
         self.out.say(f"scenario {self.sc.name}, application {self.app.name}{desc}; fabric {where}")
@@ -447,7 +471,8 @@ class Runner:
             self._close()
             for s, h in old.items():
                 signal.signal(s, h)
-        elapsed = time.monotonic() - t0
+        elapsed = self._now() - t0
+        wall = time.monotonic() - wall0
         if interrupted:
             result = f"interrupted ({interrupted})"
             code = 130
@@ -464,6 +489,7 @@ class Runner:
             f"elapsed {elapsed:.1f} s; agents started {len(self.ever_alive & set(self.expected))}/"
             f"{len(self.expected)}; outcomes: {counts or 'none'}"
             + (f"; failed outcomes {len(self.tally.failed)}" if self.tally.failed else "")
+            + (f"; times on the simulation's clock ({wall:.1f} s of wall time)" if self._sim_base is not None else "")
         )
         return code
 

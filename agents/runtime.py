@@ -24,6 +24,7 @@ from typing import Any
 
 import zenoh
 
+from rsal.clock import clock
 from rsal.transport import TransportArgs, open_session
 
 from .services import Filter, Hello, Message, Services, Subscription, check_name
@@ -81,16 +82,17 @@ class Agent:
 
     async def body(self) -> None:
         """The agent's life (thesis *executeBody*): by default ``step()`` every ``period`` seconds,
-        on a fixed schedule that skips ahead (never bursts) when a step overran."""
-        loop = asyncio.get_running_loop()
-        due = loop.time()
+        on a fixed schedule that skips ahead (never bursts) when a step overran. Periods are
+        seconds of the process's clock (:mod:`rsal.clock`: simulated seconds under a simulation)."""
+        clk = clock()
+        due = clk.now()
         while True:
             await self.step()
             due += self.period
-            now = loop.time()
+            now = clk.now()
             if due < now:
                 due = now
-            await asyncio.sleep(due - now)
+            await clk.asleep_until(due)
 
     async def killed(self) -> None:
         """Clean up (thesis *agentKilled*); runs after the body stopped."""

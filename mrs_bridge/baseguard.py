@@ -7,10 +7,11 @@ output -- keeps one :class:`BaseGuard` and asks it before it moves the motors:
   :data:`DEFAULT_CMD_TIMEOUT`; ``0`` disables the timeout, which is unsafe: a robot whose commander
   dies drives on). When a moving command is not refreshed in time, :meth:`BaseGuard.expired`
   answers ``True`` once, the driver stops the motors, the data says ``timed_out`` until the next
-  command, and one line is logged per timeout (not per cycle). The time is the server's monotonic
-  wall clock (``time.monotonic()``), whatever the simulation's speed: see docs/protocol.md,
-  "Command timeout". A position goal (a local planner's ``goto``) is not a held velocity: the
-  planner pursues it without refresh and refreshes its base itself.
+  command, and one line is logged per timeout (not per cycle). The time is the base's own clock:
+  simulated seconds for a simulated base (so a run at any speed-up behaves alike), the server's
+  monotonic wall clock for hardware and local planners: see docs/protocol.md, "Command timeout".
+  A position goal (a local planner's ``goto``) is not a held velocity: the planner pursues it
+  without refresh and refreshes its base itself.
 - **emergency stop**: ``rpc/estop`` latches the stop; while latched the base stays stopped,
   refuses velocity commands (``cmd`` puts are dropped with the server's rate-limited warning,
   ``rpc/set_velocity`` answers error code ``estop``) and its data says ``estop``; only
@@ -34,7 +35,7 @@ from .config import ConfigError
 
 __all__ = ["BaseGuard", "DEFAULT_CMD_TIMEOUT", "ESTOP_OPS", "Latched"]
 
-DEFAULT_CMD_TIMEOUT = 0.5  # s (server wall clock): a velocity command not refreshed this long stops the base
+DEFAULT_CMD_TIMEOUT = 0.5  # s (the base's clock): a velocity command not refreshed this long stops the base
 ESTOP_OPS = ("set_velocity", "estop", "release")  # the operations every base answers besides its own
 
 
@@ -45,7 +46,8 @@ class Latched(MessageError):
 class BaseGuard:
     """Deadman and emergency-stop state of one base (see the module docstring).
 
-    ``clock`` is the server's monotonic wall clock; tests pass their own.
+    ``clock`` is the base's clock: the server's monotonic wall clock by default, the world's
+    simulated time for ``sim`` bases; tests pass their own.
     """
 
     def __init__(

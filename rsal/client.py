@@ -16,7 +16,6 @@ from __future__ import annotations
 import logging
 import queue
 import threading
-import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
@@ -24,6 +23,7 @@ from typing import Any
 import zenoh
 
 from . import keys
+from .clock import clock
 from .keys import DeviceAddr
 from .msgs import ErrorCode, RpcError, encode, parse_reply
 from .transport import TransportArgs, open_session
@@ -216,7 +216,7 @@ class Fabric:
         with self._lock:
             if self._closed:
                 return
-            self._held[addr] = [payload, time.monotonic()]
+            self._held[addr] = [payload, clock().now()]
             if self._hold_thread is None:
                 self._hold_thread = threading.Thread(target=self._refresh_held, name="rsal-hold", daemon=True)
                 self._hold_thread.start()
@@ -228,7 +228,8 @@ class Fabric:
 
     def _refresh_held(self) -> None:
         while not self._closed:
-            now = time.monotonic()
+            clk = clock()  # HOLD_REFRESH counts seconds of the process's clock (simulated under use_sim_time)
+            now = clk.now()
             with self._lock:
                 due = [(a, h) for a, h in self._held.items() if now - h[1] >= HOLD_REFRESH - 0.01]
                 for _, h in due:
@@ -238,4 +239,4 @@ class Fabric:
                     self.session.put(keys.cmd_key(a), h[0], congestion_control=zenoh.CongestionControl.DROP)
                 except Exception as e:  # the session closed under us
                     log.debug("held command to %s not re-sent: %s", a, e)
-            self._hold_wake.wait(HOLD_REFRESH / 2)
+            self._hold_wake.wait(clk.wall(HOLD_REFRESH / 2))

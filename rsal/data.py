@@ -228,13 +228,20 @@ class Board:
     No thread: every method first drops expired notes. Notes are indexed by expiry time in a
     heap, so that purge looks only at expired ones; heap entries left by replaced or removed
     notes are skipped when they surface and the heap is rebuilt once stale entries outnumber
-    live ones, bounding its memory. ``clock`` returns monotonic seconds (inject a fake in
-    tests). Not thread-safe: use it from one thread or loop.
+    live ones, bounding its memory. ``clock`` returns monotonic seconds: by default the process's
+    clock (:mod:`rsal.clock`, simulated seconds under ``use_sim_time``); inject a fake in tests.
+    Not thread-safe: use it from one thread or loop.
     """
 
     __slots__ = ("_clock", "_entries", "_heap", "_seq")
 
-    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, clock: Callable[[], float] | None = None) -> None:
+        if clock is None:
+            from .clock import clock as process_clock
+
+            def clock() -> float:
+                return process_clock().now()
+
         self._clock = clock
         # key -> (object, expiry, sequence number of its put)
         self._entries: dict[Hashable, tuple[BoardObject, float, int]] = {}

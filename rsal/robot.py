@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import Future
 
@@ -25,6 +24,7 @@ import numpy as np
 
 from .behaviours import BehaviourParams, Subsumption, beam_points, fuse
 from .client import HOLD_REFRESH
+from .clock import clock
 from .data import BlobfinderBlob, Position
 from .devices import Blobfinder, Device, Gripper, Laser, Planner, Position2d, Ranger, Simulation, Sonar
 
@@ -112,7 +112,8 @@ class Robot:
         return self
 
     def _run(self) -> None:
-        next_t = time.monotonic()
+        clk = clock()  # the period counts seconds of the process's clock (simulated under use_sim_time)
+        next_t = clk.now()
         while not self._stop.is_set():
             try:
                 self.update()
@@ -120,11 +121,10 @@ class Robot:
             except Exception:
                 log.exception("%s: update failed", self.name)
             next_t += self.period
-            delay = next_t - time.monotonic()
-            if delay < -self.period:
-                next_t = time.monotonic()
-                delay = 0
-            self._stop.wait(max(0.0, delay))
+            now = clk.now()
+            if next_t < now - self.period:
+                next_t = now
+            clk.sleep_until(next_t, self._stop)
 
     def update(self) -> None:
         """One cycle of the robot's own behaviour (override)."""
@@ -185,7 +185,7 @@ class Pioneer(Robot):
         self._last_pose = cur
         sectors = fuse(self.obstacle_points())
         before = self.behaviour.state
-        v, w = self.behaviour.step(sectors, time.monotonic(), pos.stalled)
+        v, w = self.behaviour.step(sectors, clock().now(), pos.stalled)
         if self.behaviour.state != before:
             for fn in self._state_listeners:
                 fn(self.behaviour.state)

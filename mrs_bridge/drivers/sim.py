@@ -243,6 +243,7 @@ class SimDriver(Driver):
         self._last_power = -math.inf
         self.motors = True
         self.guard = BaseGuard.for_driver(self, self.cfg.provides[0].node)
+        self.guard.clock = lambda: self.world.time  # the timeout counts simulated seconds (one clock)
 
     def check_timeout(self) -> None:
         """Stop the robot if its velocity command was not refreshed within ``cmd_timeout``."""
