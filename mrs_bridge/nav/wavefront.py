@@ -54,6 +54,8 @@ import numba as nb
 import numpy as np
 from scipy import ndimage
 
+from rsal.geometry import wrap
+
 from .grid import NavGrid
 
 __all__ = ["PlanError", "Plan", "Wavefront", "Executive"]
@@ -603,8 +605,6 @@ class Wavefront:
 
 
 # ---------------------------------------------------------------------------------------- executive
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def _distance_to_polyline(p: np.ndarray, pts: np.ndarray) -> float:
@@ -713,7 +713,7 @@ class Executive:
         if (
             self.waypoint_index == last
             and math.dist((x, y), wp[last]) <= self.distance_epsilon
-            and abs(_wrap(yaw - self.goal[2])) <= self.angle_epsilon
+            and abs(wrap(yaw - self.goal[2])) <= self.angle_epsilon
         ):
             self.status = "done"
             return None, self.status
