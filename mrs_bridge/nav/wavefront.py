@@ -54,6 +54,7 @@ import numba as nb
 import numpy as np
 from scipy import ndimage
 
+from rsal.errors import RsalError
 from rsal.geometry import wrap
 
 from .grid import NavGrid
@@ -70,7 +71,7 @@ _NO_PARENT = 255
 _TIE_BREAK = 1e-6
 
 
-class PlanError(Exception):
+class PlanError(RsalError):
     """No plan: ``code`` is ``"outside_map"``, ``"in_obstacle"`` or ``"unreachable"``."""
 
     def __init__(self, code: str, message: str):

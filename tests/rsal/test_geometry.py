@@ -91,16 +91,18 @@ def test_compose_moves_a_pose_given_in_a_frame_into_the_parent_frame():
 
 def test_the_vector_forms_give_the_scalar_numbers():
     a, b = POSES[:100], POSES[100:]
-    np.testing.assert_allclose(compose_array(a, b), [compose(p, q) for p, q in zip(a, b)], atol=1e-9)
+    np.testing.assert_allclose(compose_array(a, b), [compose(p, q) for p, q in zip(a, b, strict=True)], atol=1e-9)
     np.testing.assert_allclose(invert_array(a), [invert(p) for p in a], atol=1e-9)
-    np.testing.assert_allclose(relative_array(a, b), [relative(p, q) for p, q in zip(a, b)], atol=1e-9)
+    np.testing.assert_allclose(relative_array(a, b), [relative(p, q) for p, q in zip(a, b, strict=True)], atol=1e-9)
     # one pose against many (broadcast), and many against one
     np.testing.assert_allclose(compose_array(a[0], b), [compose(a[0], q) for q in b], atol=1e-9)
     np.testing.assert_allclose(compose_array(a, b[0]), [compose(p, b[0]) for p in a], atol=1e-9)
     assert compose_array(a[0], b[0]).shape == (3,)
     pts = b[:, :2]
     np.testing.assert_allclose(transform_points(a[0], pts), [transform_point(a[0], *q) for q in pts], atol=1e-9)
-    np.testing.assert_allclose(transform_points(a, pts), [transform_point(p, *q) for p, q in zip(a, pts)], atol=1e-9)
+    np.testing.assert_allclose(
+        transform_points(a, pts), [transform_point(p, *q) for p, q in zip(a, pts, strict=True)], atol=1e-9
+    )
     np.testing.assert_allclose(to_frame(a[0], transform_points(a[0], pts)), pts, atol=1e-9)
     np.testing.assert_allclose(to_frame(a[0], pts), relative_array(a[0], b)[:, :2], atol=1e-9)
 
@@ -128,6 +130,6 @@ def test_the_simulators_private_helpers_agree():
 
     a = np.concatenate([np.array(EDGES[:-4]), RNG.uniform(-100, 100, 500)])
     assert _same_angle(_wrap(a), wrap(a), tol=1e-12)
-    for p, q in zip(POSES[:50], POSES[50:100]):
+    for p, q in zip(POSES[:50], POSES[50:100], strict=True):
         got, want = _compose(tuple(p), tuple(q)), compose(p, q)
         assert got[:2] == pytest.approx(want[:2], abs=1e-9) and _same_angle(got[2], want[2])
