@@ -56,6 +56,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
+from rsal.errors import RsalError
 from rsal.procs import spawn
 
 __all__ = ["ApiError", "Control", "map_png", "register", "run_control"]
@@ -75,7 +76,7 @@ _WATCH_URL = re.compile(r"web viewer: (http://\S+)")
 MAX_BODY = 64 * 1024
 
 
-class ApiError(ValueError):
+class ApiError(RsalError, ValueError):
     """A request the API refuses: HTTP ``status`` with a one-line message."""
 
     def __init__(self, message: str, status: int = 400):

@@ -29,6 +29,7 @@ from collections import Counter, deque
 from pathlib import Path
 
 from rsal.cliutil import positive
+from rsal.errors import RsalError
 from rsal.procs import die_with_parent
 from rsal.transport import DEFAULT_ENDPOINT, TransportArgs, port_free
 
@@ -39,7 +40,7 @@ DEFAULT_WORLD = ROOT / "maps" / "floor.world"
 MOVED = 0.05  # m of true displacement that counts as "moving"
 
 
-class _Failure(Exception):
+class _Failure(RsalError):
     """The demo cannot go on: one line for the user."""
 
 

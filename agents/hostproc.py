@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from rsal.errors import RsalError
 from rsal.transport import TransportArgs, add_transport_args
 
 __all__ = ["AgentSpec", "HostError", "HostSpec", "build_agent", "load_spec", "main", "serve_agents"]
@@ -43,7 +44,7 @@ _SPEC_KEYS = ("name", "agents", "arguments", "tolerate_failures", "report_every"
 _AGENT_KEYS = ("id", "cls", "robot", "args")
 
 
-class HostError(ValueError):
+class HostError(RsalError, ValueError):
     """A spec or an agent that cannot be built; the message is one line."""
 
 
@@ -147,7 +148,7 @@ def _status(agent) -> str:
 
 
 def _error_text(e: BaseException) -> str:
-    from rsal.errors import describe
+    from rsal.errnet import describe
 
     return describe(e)
 
@@ -344,6 +345,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from rsal.errors import run_guarded
+    from rsal.errnet import run_guarded
 
     sys.exit(run_guarded("hostproc", main))

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import importlib
 
+from rsal.errors import RsalError
+
 __all__ = ["CLASS_MODULES", "AgentClassError", "known_classes", "resolve"]
 
 #: registered class name -> the module that defines it
@@ -27,7 +29,7 @@ CLASS_MODULES: dict[str, str] = {
 }
 
 
-class AgentClassError(LookupError):
+class AgentClassError(RsalError, LookupError):
     """An agent class name that names no known class."""
 
 

@@ -591,6 +591,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from rsal.errors import run_guarded
+    from rsal.errnet import run_guarded
 
     sys.exit(run_guarded("rsal run", main))

@@ -38,6 +38,8 @@ from typing import Any
 
 import yaml
 
+from rsal.errors import RsalError
+
 from .services import check_name
 
 __all__ = [
@@ -65,7 +67,7 @@ _END = ("event", "count", "timeout", "duration")
 _NAV = ("vfh", "nd", "snd")
 
 
-class ScenarioError(ValueError):
+class ScenarioError(RsalError, ValueError):
     """A scenario file (or an override) that cannot be run; the message is one line."""
 
 

@@ -30,12 +30,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from rsal.errors import RsalError
 from rsal.keys import DeviceAddr, check_name, parse_device
 
 __all__ = ["ConfigError", "DriverConfig", "ServerConfig", "load_config", "parse_config"]
 
 
-class ConfigError(ValueError):
+class ConfigError(RsalError, ValueError):
     """A configuration that cannot be used; the text names file, block and fix."""
 
 

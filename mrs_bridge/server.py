@@ -39,6 +39,7 @@ import zenoh
 
 from rsal import keys
 from rsal.client import query_rpc
+from rsal.errors import RsalError
 from rsal.keys import DeviceAddr
 from rsal.msgs import (
     Describe,
@@ -105,7 +106,7 @@ class _Inbox:
             return self._q.popleft()
 
 
-class ServerError(RuntimeError):
+class ServerError(RsalError, RuntimeError):
     """The server cannot start or run (no working driver)."""
 
 

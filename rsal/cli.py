@@ -6,7 +6,7 @@ layers add theirs through the ``rsal.commands`` entry-point group (``serve`` and
 it. Each entry point is a function ``register(subparsers)`` that adds a sub-command whose
 ``func(args) -> int`` runs it.
 
-Every command runs inside one safety net (:func:`rsal.errors.run_guarded`): a failure -- a bad
+Every command runs inside one safety net (:func:`rsal.errnet.run_guarded`): a failure -- a bad
 file or flag, nothing to talk to, a device that does not answer, a port in use, or a bug -- prints
 one line on stderr naming what failed and what to do, and exits 1; Ctrl-C exits 130 after a clean
 stop. ``-v`` (before or after the command) or ``RSAL_DEBUG=1`` adds the traceback, also in the
@@ -22,7 +22,7 @@ import sys
 import time
 from importlib.metadata import entry_points
 
-from .errors import DEBUG_ENV, OneLineFormatter, debug_enabled, describe, install_thread_hook, run_guarded
+from .errnet import DEBUG_ENV, OneLineFormatter, debug_enabled, describe, install_thread_hook, run_guarded
 from .transport import TransportArgs, add_transport_args
 
 __all__ = ["main", "setup_logging"]
@@ -30,7 +30,7 @@ __all__ = ["main", "setup_logging"]
 
 def setup_logging(verbosity: int = 0) -> None:
     """INFO by default, DEBUG with ``-v``; one line per record on stderr (a logged exception's
-    traceback only in debug mode, see :func:`rsal.errors.debug_enabled`).
+    traceback only in debug mode, see :func:`rsal.errnet.debug_enabled`).
 
     Zenoh's own (Rust) log stays silent by default, so that a refused connection or a retry does
     not add lines to a command's output; ``-v`` turns it on at warning level, and ``RUST_LOG``

@@ -2,11 +2,12 @@
 
 Implements the *Data* component of the RSAL middle layer (thesis 3.6.2.1, figures 3.12-3.15):
 
-- :func:`normalize_angle` is the thesis's ``getRelativeAngle``: an angle mapped to [-pi, pi).
+- :func:`normalize_angle` is the thesis's ``getRelativeAngle``: an angle mapped to [-pi, pi)
+  (:func:`rsal.geometry.wrap` for finite values, ValueError otherwise).
 - :class:`Position` is a planar pose (x, y in metres, yaw in radians) with the frame transforms
-  of equations (3.1) and (3.2): :meth:`Position.to_global` takes a position given in a local
-  frame (e.g. the robot's) into the frame that local frame is expressed in (e.g. the world),
-  :meth:`Position.to_local` is the inverse.
+  of equations (3.1) and (3.2), computed by :mod:`rsal.geometry`: :meth:`Position.to_global`
+  takes a position given in a local frame (e.g. the robot's) into the frame that local frame is
+  expressed in (e.g. the world), :meth:`Position.to_local` is the inverse.
 - :class:`Goal` is a goal with a cost and an obsolete flag (figure 3.13).
 - :class:`Board` is the blackboard of :class:`BoardObject` notes with topics and timeouts
   (figure 3.14). As in the thesis it has no thread: expired notes are removed whenever the board
@@ -29,6 +30,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, ClassVar
 
+from .geometry import compose, relative, wrap
+
 __all__ = [
     "DEFAULT_TIMEOUT",
     "BlobfinderBlob",
@@ -38,8 +41,6 @@ __all__ = [
     "Position",
     "normalize_angle",
 ]
-
-_TWO_PI = 2.0 * math.pi
 
 DEFAULT_TIMEOUT = 60.0
 """Seconds a :class:`BoardObject` stays on a :class:`Board` unless it says otherwise."""
@@ -51,18 +52,9 @@ def normalize_angle(a: float) -> float:
     Raises ValueError if ``a`` is not finite.
     """
     a = float(a)
-    if -math.pi <= a < math.pi:
-        return a
     if not math.isfinite(a):
         raise ValueError(f"cannot normalise angle {a!r}: it is not finite")
-    r = math.fmod(a + math.pi, _TWO_PI)
-    if r < 0.0:
-        r += _TWO_PI
-    r -= math.pi
-    # Rounding in the two additions can land exactly on pi (or a hair past it).
-    if r >= math.pi:
-        r -= _TWO_PI
-    return r
+    return wrap(a)
 
 
 def _finite(value: object, what: str) -> float:
@@ -135,19 +127,12 @@ class Position:
         ``frame`` is the local frame's origin and orientation in the parent (e.g. the robot's
         pose in the world); equation (3.1) gives x and y, equation (3.2) the normalised yaw.
         """
-        c, s = math.cos(frame.yaw), math.sin(frame.yaw)
-        return Position(
-            c * self.x - s * self.y + frame.x,
-            s * self.x + c * self.y + frame.y,
-            normalize_angle(frame.yaw + self.yaw),
-        )
+        return Position(*compose(frame.as_tuple(), self.as_tuple()))
 
     def to_local(self, frame: Position) -> Position:
         """The inverse of :meth:`to_global`: this position, given in the parent frame, expressed
         in the local frame ``frame``."""
-        c, s = math.cos(frame.yaw), math.sin(frame.yaw)
-        dx, dy = self.x - frame.x, self.y - frame.y
-        return Position(c * dx + s * dy, -s * dx + c * dy, normalize_angle(self.yaw - frame.yaw))
+        return Position(*relative(frame.as_tuple(), self.as_tuple()))
 
     def cartesian(self) -> Position:
         """Read ``x`` as a range (m) and ``y`` as an angle (rad); return ``(r cos, r sin, 0)``.

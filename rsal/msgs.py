@@ -23,6 +23,8 @@ import msgpack
 import numpy as np
 import ormsgpack
 
+from .errors import RsalError
+
 __all__ = [
     "MessageError",
     "ErrorCode",
@@ -65,7 +67,7 @@ __all__ = [
 PROTOCOL_VERSION = 1
 
 
-class MessageError(ValueError):
+class MessageError(RsalError, ValueError):
     """A payload that does not match its schema; the text names the field."""
 
 
@@ -84,7 +86,7 @@ class ErrorCode(StrEnum):
     TIMEOUT = "timeout"  # (client side) no reply within the deadline
 
 
-class RpcError(Exception):
+class RpcError(RsalError):
     """An RPC answered with an error (or not at all)."""
 
     def __init__(self, code: str, message: str, key: str = ""):

@@ -27,13 +27,14 @@ from .client import HOLD_REFRESH
 from .clock import clock
 from .data import BlobfinderBlob, Position
 from .devices import Blobfinder, Device, Gripper, Laser, Planner, Position2d, Ranger, Simulation, Sonar
+from .errors import RsalError
 
 __all__ = ["Robot", "Pioneer", "ExploreRobot", "NavRobot", "RobotError"]
 
 log = logging.getLogger(__name__)
 
 
-class RobotError(ValueError):
+class RobotError(RsalError, ValueError):
     """A robot cannot be made from the given devices."""
 
 

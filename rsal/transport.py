@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from .errors import ENDPOINT_FORM, zenoh_summary, zenoh_text
+from .errnet import ENDPOINT_FORM, zenoh_summary, zenoh_text
 
 __all__ = ["DEFAULT_ENDPOINT", "TransportArgs", "add_transport_args", "make_config", "open_session", "port_free"]
 

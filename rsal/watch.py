@@ -45,6 +45,7 @@ import zenoh
 
 from . import keys
 from .cliutil import stop_on_signals
+from .geometry import compose_array, invert_array
 from .keys import DeviceAddr
 from .msgs import (
     BlobfinderData,
@@ -67,7 +68,6 @@ __all__ = [
     "run_watch",
     "Watcher",
     "WatchOptions",
-    "compose",
     "beam_layout",
     "scan_to_world",
     "cov_ellipse",
@@ -84,27 +84,6 @@ FLIP = (1.0, -1.0, 1.0)  # world y points up (north), a Rerun 2D view's y points
 
 
 # ---------------------------------------------------------------------------- pure conversions
-def compose(a, b) -> np.ndarray:
-    """``a ⊕ b`` of planar poses ``[x, y, yaw]``: ``b`` given in ``a``'s frame, returned in
-    ``a``'s parent frame. ``b`` may be one pose (3,) or many (n, 3)."""
-    if len(b) == 3 and not isinstance(b[0], (list, tuple, np.ndarray)):  # one pose: plain floats
-        c, s = math.cos(a[2]), math.sin(a[2])
-        return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2]])
-    a = np.asarray(a, dtype=float)
-    b = np.asarray(b, dtype=float)
-    c, s = math.cos(a[2]), math.sin(a[2])
-    x = a[0] + c * b[..., 0] - s * b[..., 1]
-    y = a[1] + s * b[..., 0] + c * b[..., 1]
-    return np.stack([x, y, a[2] + b[..., 2]], axis=-1)
-
-
-def inverse(a) -> np.ndarray:
-    """``a⁻¹`` of a planar pose: ``compose(a, inverse(a)) == [0, 0, 0]``."""
-    x, y, t = (float(v) for v in a)
-    c, s = math.cos(t), math.sin(t)
-    return np.array([-c * x - s * y, s * x - c * y, -t])
-
-
 def beam_layout(geometry: dict, n: int, angle_min: float, angle_step: float) -> tuple[np.ndarray, np.ndarray]:
     """Where each of ``n`` beams starts and points, in the robot frame: ``(origins (n, 2),
     angles (n,))``. A laser (``angle_step`` != 0) fans its beams from the one sensor
@@ -113,13 +92,13 @@ def beam_layout(geometry: dict, n: int, angle_min: float, angle_step: float) -> 
     mount = np.asarray(geometry.get("pose") or (0.0, 0.0, 0.0), dtype=float)
     sensors = [s.get("pose") or (0.0, 0.0, 0.0) for s in geometry.get("sensors") or [] if isinstance(s, dict)]
     if angle_step != 0.0 or not sensors:
-        origin = compose(mount, np.asarray(sensors[0] if sensors else (0.0, 0.0, 0.0), dtype=float))
+        origin = compose_array(mount, np.asarray(sensors[0] if sensors else (0.0, 0.0, 0.0), dtype=float))
         angles = origin[2] + angle_min + angle_step * np.arange(n)
         return np.broadcast_to(origin[:2], (n, 2)).copy(), angles
     poses = np.asarray(sensors, dtype=float)
     if len(poses) < n:  # more readings than described transducers: repeat the last one
         poses = np.vstack([poses, np.repeat(poses[-1:], n - len(poses), axis=0)])
-    t = compose(mount, poses[:n])
+    t = compose_array(mount, poses[:n])
     return t[:, :2].copy(), t[:, 2].copy()
 
 
@@ -176,7 +155,7 @@ def footprint(pose, size) -> list[np.ndarray]:
     hl, hw = float(size[0]) / 2.0, float(size[1]) / 2.0
     corners = np.array([[hl, hw, 0], [-hl, hw, 0], [-hl, -hw, 0], [hl, -hw, 0], [hl, hw, 0]], dtype=float)
     head = np.array([[0.0, 0.0, 0.0], [hl, 0.0, 0.0]])
-    return [compose(pose, corners)[:, :2], compose(pose, head)[:, :2]]
+    return [compose_array(pose, corners)[:, :2], compose_array(pose, head)[:, :2]]
 
 
 def map_image(cells: np.ndarray) -> np.ndarray:
@@ -289,7 +268,7 @@ class _Robot:
         t, o = self.anchor
         if self.odom is None or o is None:
             return t
-        return compose(t, compose(inverse(o), self.odom))
+        return compose_array(t, compose_array(invert_array(o), self.odom))
 
     def best(self) -> np.ndarray | None:
         """The pose sensors are drawn from: ground truth, else the localized pose."""
@@ -780,7 +759,7 @@ class Watcher:
         rng = np.array([x.range for x in b.blobs])
         brg = np.array([x.bearing for x in b.blobs])
         local = np.column_stack([rng * np.cos(brg), rng * np.sin(brg), np.zeros_like(rng)])
-        w = compose(compose(pose, cam), local)[:, :2]
+        w = compose_array(compose_array(pose, cam), local)[:, :2]
         colors = np.array([(x.color << 8) | 255 for x in b.blobs], dtype=np.uint32)
         self.log(path, rr.Points2D(w, radii=0.06, colors=colors))
         self._last_scan[addr] = now
@@ -812,7 +791,7 @@ class Watcher:
                     self.log(entity("plots", name, "speed"), rr.Scalars(rb.speed))
             best = truth if truth is not None else rb.best()
             if rb.carrying and best is not None:
-                g = compose(best, rb.gripper_pose)
+                g = compose_array(best, rb.gripper_pose)
                 self.log(base + "/carried", rr.Points2D([g[:2]], radii=0.07, colors=GREEN, labels=[rb.carrying]))
 
     def _place(self, rb: _Robot, kind: str, pose, *, radius: float, color: int, label: str) -> None:

@@ -493,6 +493,9 @@ def _check(ok: bool, p: _Prop, need: str, example: str) -> None:
 
 
 def _compose(a: Pose, b: Pose) -> Pose:
+    """A child model's pose ``b`` in its parent ``a``'s frame, in the world (yaw not wrapped, as Stage
+    keeps it). The simulator depends on nothing of ours, so this is not rsal.geometry.compose;
+    tests/rsal/test_geometry.py checks that the two agree."""
     c, s = math.cos(a[2]), math.sin(a[2])
     return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2])
 

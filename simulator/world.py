@@ -56,7 +56,9 @@ _ROBOT_ARRAYS = ("_cmd", "_vel", "_limits", "_odom", "_bias", "_noise", "_prev",
 
 
 def _wrap(a):
-    """Angles to [-pi, pi)."""
+    """Angles to [-pi, pi). The simulator depends on nothing of ours (docs/concepts.md, "Layers"),
+    so it keeps this one line instead of importing rsal.geometry.wrap; tests/rsal/test_geometry.py
+    checks that the two agree."""
     return (np.asarray(a) + math.pi) % (2.0 * math.pi) - math.pi
 
 

@@ -134,38 +134,6 @@ def fabric_factory():
         f.close()
 
 
-class _Entity:
-    def undeclare(self) -> None:
-        pass
-
-    def put(self, payload, **kw) -> None:  # a publisher's put: published into nothing
-        pass
-
-
-class FakeSession:
-    """Just enough of a Zenoh session for ``DeviceServer.start()`` and a few scheduler passes without a
-    network: every declaration succeeds and does nothing; the liveliness tokens declared are recorded."""
-
-    def __init__(self) -> None:
-        self.tokens: list[str] = []
-
-    def declare_publisher(self, key, **kw):
-        return _Entity()
-
-    def declare_subscriber(self, key, handler, **kw):
-        return _Entity()
-
-    def declare_queryable(self, key, handler, **kw):
-        return _Entity()
-
-    def liveliness(self):
-        return self
-
-    def declare_token(self, key):
-        self.tokens.append(str(key))
-        return _Entity()
-
-
 class LoopThread:
     """An asyncio loop on a daemon thread for tests that host agents in-process; ``run(coro)``
     waits for the result (``timeout`` seconds, the instance's default unless given)."""

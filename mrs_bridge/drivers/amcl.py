@@ -41,6 +41,7 @@ import time
 
 import numpy as np
 
+from rsal.geometry import compose, relative
 from rsal.msgs import (
     ErrorCode,
     Hypothesis,
@@ -55,7 +56,7 @@ from rsal.msgs import (
 
 from ..config import ConfigError
 from ..driver import Driver, register
-from .navcommon import BeamGeometry, compose, relative
+from .navcommon import BeamGeometry
 
 __all__ = ["AmclDriver"]
 

@@ -63,6 +63,7 @@ from typing import Any
 
 import numpy as np
 
+from rsal.errors import RsalError
 from rsal.msgs import ErrorCode, RangerData, RpcError
 
 from ..config import ConfigError
@@ -89,7 +90,7 @@ log = logging.getLogger(__name__)
 LINE = 64  # data characters per line before the check character
 
 
-class ScipError(ValueError):
+class ScipError(RsalError, ValueError):
     """A malformed SCIP 2.0 frame or an error status from the sensor."""
 
 

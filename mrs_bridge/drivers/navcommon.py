@@ -1,7 +1,7 @@
 """What the navigation drivers (``amcl``, ``wavefront``, ``vfh``/``nd``/``snd``) share.
 
-- Pose algebra in SE(2) (compose, invert) for moving targets between the map frame of the
-  localizer and the odometry frame of a base (Player's wavefront does the same hand-over).
+- The hand-over of a target between the map frame of the localizer and the odometry frame of a
+  base (Player's wavefront does the same), with the SE(2) algebra of :mod:`rsal.geometry`.
 - Beam geometry of a range device from its ``rpc/describe`` geometry (as the ``sim`` driver and
   real drivers describe it: a mount ``pose`` and one entry per sensor) and a scan: every beam's
   origin and bearing in the robot frame, for a laser (one sensor, many samples) and a sonar ring
@@ -17,33 +17,12 @@ from typing import Any
 
 import numpy as np
 
+from rsal.geometry import compose, relative, wrap
 from rsal.msgs import RangerData
 
 from ..config import ConfigError
 
-__all__ = ["compose", "invert", "relative", "wrap", "BeamGeometry", "Handover", "deg_param", "num_param"]
-
-
-def wrap(a: float) -> float:
-    """Angle normalised to [-pi, pi)."""
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def compose(a, b) -> tuple[float, float, float]:
-    """``a ⊕ b``: pose ``b`` given in frame ``a``, expressed in ``a``'s parent frame."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], wrap(a[2] + b[2]))
-
-
-def invert(a) -> tuple[float, float, float]:
-    """``a⁻¹``: the parent frame's origin seen from frame ``a``."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return (-c * a[0] - s * a[1], s * a[0] - c * a[1], wrap(-a[2]))
-
-
-def relative(a, b) -> tuple[float, float, float]:
-    """``a⁻¹ ⊕ b``: pose ``b`` seen from pose ``a`` (both in the same frame)."""
-    return compose(invert(a), b)
+__all__ = ["BeamGeometry", "Handover", "deg_param", "num_param"]
 
 
 class Handover:

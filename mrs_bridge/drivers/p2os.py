@@ -78,6 +78,7 @@ from typing import Any
 
 import numpy as np
 
+from rsal.geometry import wrap
 from rsal.msgs import (
     ActArrayData,
     DioCmd,
@@ -341,8 +342,8 @@ class Odometry:
         self._last = None
 
     def set_pose(self, x: float, y: float, yaw: float) -> None:
-        self._frame += _wrap(yaw - self.pose[2])
-        self.pose = [x, y, _wrap(yaw)]
+        self._frame += wrap(yaw - self.pose[2])
+        self.pose = [x, y, wrap(yaw)]
 
     def update(self, sip: Sip) -> tuple[float, float, float]:
         cur = (sip.xpos, sip.ypos, sip.thpos)
@@ -354,7 +355,7 @@ class Odometry:
             c, s = math.cos(self._frame), math.sin(self._frame)
             self.pose[0] += c * dx - s * dy
             self.pose[1] += s * dx + c * dy
-            self.pose[2] = _wrap(self.pose[2] + dth)
+            self.pose[2] = wrap(self.pose[2] + dth)
         self._last = cur
         return (self.pose[0], self.pose[1], self.pose[2])
 
@@ -362,10 +363,6 @@ class Odometry:
 def _wrap_count(d: int, bits: int) -> int:
     half = 1 << (bits - 1)
     return (d + half) % (1 << bits) - half
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 # ---------------------------------------------------------------------------- the serial link

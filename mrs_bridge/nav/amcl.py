@@ -63,6 +63,8 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from rsal.geometry import compose_array, relative, wrap
+
 from .grid import NavGrid
 
 __all__ = [
@@ -89,11 +91,6 @@ _MOVED_KEYS = {
     "laser_range_var": "set laser_sigma_hit, the standard deviation of a hit in metres",
     "laser_range_bad": "set laser_z_rand, the weight of random readings",
 }
-
-
-def _wrap(a):
-    """Angles to [-pi, pi)."""
-    return (np.asarray(a, dtype=np.float64) + math.pi) % (2.0 * math.pi) - math.pi
 
 
 @dataclass
@@ -236,7 +233,7 @@ def kld_sample_count(k, err: float, z: float) -> np.ndarray:
 def _bin_triples(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     bx = np.floor(p[:, 0] / BIN_XY).astype(np.int64)
     by = np.floor(p[:, 1] / BIN_XY).astype(np.int64)
-    bt = np.floor((_wrap(p[:, 2]) + math.pi) / BIN_YAW).astype(np.int64) % _N_YAW_BINS
+    bt = np.floor((wrap(p[:, 2]) + math.pi) / BIN_YAW).astype(np.int64) % _N_YAW_BINS
     return bx, by, bt
 
 
@@ -244,16 +241,6 @@ def _bin_keys(p: np.ndarray) -> np.ndarray:
     """One int64 per particle naming its KLD bin."""
     bx, by, bt = _bin_triples(p)
     return ((bx + (1 << 20)) << 26) | ((by + (1 << 20)) << 6) | bt
-
-
-def _compose(pose: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """``pose (+) delta`` for poses ``(..., 3)`` and a robot-frame displacement ``(dx, dy, dyaw)``."""
-    c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
-    out = np.array(pose, dtype=np.float64, copy=True)
-    out[..., 0] += c * delta[0] - s * delta[1]
-    out[..., 1] += s * delta[0] + c * delta[1]
-    out[..., 2] = _wrap(pose[..., 2] + delta[2])
-    return out
 
 
 def _mean_cov(p: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -264,7 +251,7 @@ def _mean_cov(p: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     sn, cs = np.sin(t), np.cos(t)
     mx, my, sc, cc = (float((w * v).sum()) for v in (x, y, sn, cs))
     mt = math.atan2(sc, cc)
-    d = (x - mx, y - my, _wrap(t - mt))
+    d = (x - mx, y - my, wrap(t - mt))
     cov = np.empty((3, 3))
     for i in range(3):
         wd = w * d[i]
@@ -415,7 +402,7 @@ class Amcl:
 
     # ------------------------------------------------------------------ initialisation
     def _reset(self, particles: np.ndarray) -> None:
-        particles[:, 2] = _wrap(particles[:, 2])
+        particles[:, 2] = wrap(particles[:, 2])
         self.particles = particles
         self.weights = np.full(particles.shape[0], 1.0 / particles.shape[0])
         self._fresh = np.zeros(particles.shape[0], dtype=bool)  # injected by recovery, not yet weighed
@@ -475,7 +462,7 @@ class Amcl:
         if not self._due:
             d = p - self._odom_ref
             dist_t, ang_t = self.params.update_thresh
-            if math.hypot(d[0], d[1]) > dist_t or abs(float(_wrap(d[2]))) > ang_t:
+            if math.hypot(d[0], d[1]) > dist_t or abs(float(wrap(d[2]))) > ang_t:
                 self._move()
                 self._due = True
         return self._due
@@ -487,8 +474,8 @@ class Amcl:
             return
         dx, dy = p1[0] - p0[0], p1[1] - p0[1]
         trans = math.hypot(dx, dy)
-        rot1 = float(_wrap(math.atan2(dy, dx) - p0[2])) if trans > 0.01 else 0.0
-        rot2 = float(_wrap(p1[2] - p0[2] - rot1))
+        rot1 = float(wrap(math.atan2(dy, dx) - p0[2])) if trans > 0.01 else 0.0
+        rot2 = float(wrap(p1[2] - p0[2] - rot1))
         # Reversing is a small rotation plus a negative translation, not a half turn.
         n1 = min(abs(rot1), math.pi - abs(rot1))
         n2 = min(abs(rot2), math.pi - abs(rot2))
@@ -510,7 +497,7 @@ class Amcl:
         h = q[:, 2] + r1
         q[:, 0] += tr * np.cos(h)
         q[:, 1] += tr * np.sin(h)
-        q[:, 2] = _wrap(h + r2)
+        q[:, 2] = wrap(h + r2)
         self._stamp += 1
         self._odom_ref = p1
 
@@ -694,9 +681,7 @@ class Amcl:
         p0, p1 = self._odom_ref, self._odom_last
         if p0 is None or p1 is None:
             return np.zeros(3)
-        c, s = math.cos(p0[2]), math.sin(p0[2])
-        dx, dy = p1[0] - p0[0], p1[1] - p0[1]
-        return np.array([c * dx + s * dy, -s * dx + c * dy, float(_wrap(p1[2] - p0[2]))])
+        return np.array(relative(p0, p1))
 
     def _weighed(self) -> tuple[np.ndarray, np.ndarray]:
         """Particles and weights without the random ones injected since the last scan: until a
@@ -717,7 +702,7 @@ class Amcl:
             q, w = self._weighed()
             self._cached = (self._stamp, *_mean_cov(q, w))
         _, mean, cov = self._cached
-        return _compose(mean, self._pending()), cov.copy()
+        return compose_array(mean, self._pending()), cov.copy()
 
     def hypotheses(self) -> list[tuple[float, np.ndarray, np.ndarray]]:
         """``(weight, mean, covariance)`` per cluster of particles, heaviest first.
@@ -757,12 +742,12 @@ class Amcl:
         cs = np.bincount(cid, wn * np.cos(q[:, 2]), nc)
         mt = np.arctan2(sn, cs)
         r = np.minimum(np.hypot(sn, cs), 1.0)
-        d = np.stack([q[:, 0] - mx[cid], q[:, 1] - my[cid], _wrap(q[:, 2] - mt[cid])], axis=1)
+        d = np.stack([q[:, 0] - mx[cid], q[:, 1] - my[cid], wrap(q[:, 2] - mt[cid])], axis=1)
         cov = np.zeros((nc, 3, 3))
         for i in range(3):
             for j in range(i, 3):
                 cov[:, i, j] = cov[:, j, i] = np.bincount(cid, wn * d[:, i] * d[:, j], nc)
         cov[:, 2, 2] = -2.0 * np.log(np.maximum(r, 1e-300))
-        means = _compose(np.stack([mx, my, mt], axis=1), self._pending())
+        means = compose_array(np.stack([mx, my, mt], axis=1), self._pending())
         order = np.argsort(-wsum, kind="stable")
         return [(float(wsum[i]), means[i], cov[i]) for i in order]

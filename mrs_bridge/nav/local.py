@@ -66,6 +66,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from rsal.geometry import TWO_PI, wrap
+
 __all__ = [
     "KEEP_RIGHT",
     "Command",
@@ -76,12 +78,10 @@ __all__ = [
     "corridor_clear",
     "free_path_length",
     "polar_ranges",
-    "wrap",
 ]
 
 log = logging.getLogger(__name__)
 
-TWO_PI = 2.0 * math.pi
 _TURN_GAIN = 1.5  # 1/s: in-place turn rate per radian of yaw error at the goal
 KEEP_RIGHT = 0.1  # rad: a way round on the left must be this much nearer the goal to win (traffic rule)
 _GUARD_FRACTIONS = np.array([1.0, 0.8, 0.6, 0.45, 0.3, 0.2, 0.1])  # speeds the guard tries, of the planned one
@@ -142,13 +142,6 @@ def _num(x: float) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- helpers
-def wrap(a):
-    """Angles to [-pi, pi) (scalars or arrays)."""
-    if isinstance(a, float | int):
-        return (a + math.pi) % TWO_PI - math.pi
-    return (np.asarray(a) + math.pi) % TWO_PI - math.pi
-
-
 def as_points(points) -> np.ndarray:
     """Obstacle points as a float64 ``(n, 2)`` array; rows with a non-finite value are dropped."""
     if points is None:

@@ -19,9 +19,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rsal.geometry import compose, invert, wrap
 from simulator.world import World
 
-from .local import LocalPlanner, Status, wrap
+from .local import LocalPlanner, Status
 
 __all__ = ["Agent", "RunResult", "Trial", "draw_trial", "in_contact", "laser_points", "run", "run_trial"]
 
@@ -38,11 +39,8 @@ def laser_points(world: World, name: str, ranger: int | None = None) -> np.ndarr
     spec = specs[ranger]
     s = spec.sensors[0]
     n = reading.ranges.shape[0]
-    px, py, pa = spec.pose
-    sx, sy, sa = s.pose
-    ox = px + math.cos(pa) * sx - math.sin(pa) * sy
-    oy = py + math.sin(pa) * sx + math.cos(pa) * sy
-    a0 = pa + sa - s.fov / 2.0
+    ox, oy, _ = compose(spec.pose, s.pose)
+    a0 = spec.pose[2] + s.pose[2] - s.fov / 2.0
     ang = a0 + np.arange(n) * (s.fov / (n - 1) if n > 1 else 0.0)
     r = reading.ranges.astype(np.float64)
     ok = (r < s.range_max - 1e-3) & (r > s.range_min)
@@ -81,17 +79,6 @@ class RunResult:
     poses: list[tuple[float, float, float]] = field(default_factory=list)
 
 
-def _compose(a, b):
-    """Pose composition a (+) b."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], wrap(a[2] + b[2]))
-
-
-def _inverse(a):
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return (-c * a[0] - s * a[1], s * a[0] - c * a[1], wrap(-a[2]))
-
-
 def run(
     world: World,
     agents: Sequence[Agent],
@@ -116,8 +103,8 @@ def run(
         if ag.odometry:
             odom = world.odometry(ag.robot)
             true = world.get_pose(ag.robot)
-            to_odom = _compose(odom, _inverse(true))
-            goals.append(_compose(to_odom, ag.goal))
+            to_odom = compose(odom, invert(true))
+            goals.append(compose(to_odom, ag.goal))
         else:
             goals.append(tuple(ag.goal))
         ag.planner.set_goal(goals[-1])

@@ -49,7 +49,9 @@ from typing import Any
 
 import numpy as np
 
-from .local import KEEP_RIGHT, TWO_PI, LocalPlanner, Param, corridor_clear, wrap
+from rsal.geometry import TWO_PI, wrap
+
+from .local import KEEP_RIGHT, LocalPlanner, Param, corridor_clear
 
 __all__ = ["SND", "GUARD_MARGIN"]
 

@@ -22,9 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rsal.geometry import compose, relative
 from simulator.world import World
 
-from ..drivers.navcommon import BeamGeometry, Handover, compose, relative
+from ..drivers.navcommon import BeamGeometry, Handover
 from . import profile
 from .amcl import Amcl, AmclParams
 from .grid import NavGrid

@@ -55,7 +55,9 @@ from typing import Any
 
 import numpy as np
 
-from .local import KEEP_RIGHT, TWO_PI, LocalPlanner, Param, wrap
+from rsal.geometry import TWO_PI, wrap
+
+from .local import KEEP_RIGHT, LocalPlanner, Param
 
 __all__ = ["VFH"]
 

@@ -54,6 +54,9 @@ import numba as nb
 import numpy as np
 from scipy import ndimage
 
+from rsal.errors import RsalError
+from rsal.geometry import wrap
+
 from .grid import NavGrid
 
 __all__ = ["PlanError", "Plan", "Wavefront", "Executive"]
@@ -68,7 +71,7 @@ _NO_PARENT = 255
 _TIE_BREAK = 1e-6
 
 
-class PlanError(Exception):
+class PlanError(RsalError):
     """No plan: ``code`` is ``"outside_map"``, ``"in_obstacle"`` or ``"unreachable"``."""
 
     def __init__(self, code: str, message: str):
@@ -603,8 +606,6 @@ class Wavefront:
 
 
 # ---------------------------------------------------------------------------------------- executive
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def _distance_to_polyline(p: np.ndarray, pts: np.ndarray) -> float:
@@ -713,7 +714,7 @@ class Executive:
         if (
             self.waypoint_index == last
             and math.dist((x, y), wp[last]) <= self.distance_epsilon
-            and abs(_wrap(yaw - self.goal[2])) <= self.angle_epsilon
+            and abs(wrap(yaw - self.goal[2])) <= self.angle_epsilon
         ):
             self.status = "done"
             return None, self.status

@@ -36,6 +36,7 @@ from mrs_bridge.drivers.virtual_ranger import VirtualRanger, merge_discs
 from rsal.data import Position
 from rsal.msgs import ErrorCode, Position2dData, RangerData, RpcError
 from rsal.robot import Robot
+from rsal.testing import FakeServer
 from rsal.transport import TransportArgs, open_session
 from simulator.loader import load_world
 from simulator.world import World
@@ -126,24 +127,6 @@ LASER_GEOMETRY = {
     "pose": [0.13, 0.0, 0.0],
     "sensors": [{"pose": [0.0, 0.0, 0.0], "fov": math.pi, "samples": 181, "range_min": 0.02, "range_max": 5.6}],
 }
-
-
-class FakeServer:
-    """What the driver sees of its server: what it publishes and requests is recorded."""
-
-    def __init__(self):
-        self.published: list = []
-        self.requests: list[tuple[str, str, dict | None]] = []
-        self.shared: dict = {}
-
-    def publish(self, addr, msg):
-        self.published.append((str(addr), msg))
-
-    def request(self, driver, addr, op, args, timeout):
-        self.requests.append((str(addr), op, args))
-
-    def _warn(self, key, text, level=None):
-        pass
 
 
 def _scan(t: float = 1.0) -> dict:

@@ -23,7 +23,8 @@ import mrs_bridge.drivers  # noqa: F401  (registers the built-in drivers)
 from mrs_bridge.cli import sim_config
 from mrs_bridge.config import parse_config
 from mrs_bridge.server import DeviceServer
-from tests.conftest import MAPS, ROOT, FakeSession, free_port, rsal_cmd
+from rsal.testing import FakeSession
+from tests.conftest import MAPS, ROOT, free_port, rsal_cmd
 
 DOC = ROOT / "docs" / "configuration.md"
 BLOCK = re.compile(r"^```toml\n(.*?)^```\n", re.S | re.M)
@@ -80,7 +81,7 @@ def test_every_toml_block_is_marked():
 @pytest.mark.parametrize("ex", GOOD, ids=lambda e: e.path)
 def test_documented_config_loads_and_its_drivers_start(ex):
     cfg = load(ex)
-    session = FakeSession()
+    session = FakeSession(silent=True)  # no other server: required devices never appear
     server = DeviceServer(cfg, session)  # type: ignore[arg-type]
     try:
         server.start()

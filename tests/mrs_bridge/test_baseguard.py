@@ -14,7 +14,8 @@ from mrs_bridge.driver import Deferred
 from mrs_bridge.server import DeviceServer
 from rsal.keys import parse_device
 from rsal.msgs import ErrorCode, Position2dData, RpcError, decode_map
-from tests.conftest import MAPS, FakeSession
+from rsal.testing import FakeServer, FakeSession
+from tests.conftest import MAPS
 
 
 class Clock:
@@ -82,28 +83,6 @@ cmd_timeout = {bad}
 
 
 # ---------------------------------------------------------------------------- the sim driver
-class _Pub:
-    def __init__(self, key: str, sink: dict) -> None:
-        self.key, self.sink = key, sink
-
-    def put(self, payload) -> None:
-        self.sink[self.key] = bytes(payload)
-
-    def undeclare(self) -> None:
-        pass
-
-
-class RecordingSession(FakeSession):
-    """A fake session whose publishers keep the last payload per key."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.last: dict[str, bytes] = {}
-
-    def declare_publisher(self, key, **kw):
-        return _Pub(str(key), self.last)
-
-
 @pytest.fixture
 def sim():
     text = f"""
@@ -122,7 +101,7 @@ model = "r0"
 provides = ["r0:position2d:0"]
 cmd_timeout = 0.5
 """
-    session = RecordingSession()
+    session = FakeSession()  # keeps the last payload per key
     server = DeviceServer(parse_config(text, source="sim.toml"), session)
     server.start()
     simulation = next(s.driver for s in server.slots if s.driver.cfg.name == "simulation")
@@ -192,28 +171,6 @@ def test_sim_base_emergency_stop_latches_until_released(sim):
 
 
 # ---------------------------------------------------------------------------- a local planner's output
-class FakeServer:
-    """What a driver sees of its server: everything it sends, publishes and requests is recorded."""
-
-    def __init__(self):
-        self.sent: list[tuple[str, object]] = []
-        self.published: list = []
-        self.requests: list[tuple[str, str]] = []
-        self.shared: dict = {}
-
-    def send(self, addr, msg):
-        self.sent.append((str(addr), msg))
-
-    def publish(self, addr, msg):
-        self.published.append(msg)
-
-    def publish_event(self, addr, msg):
-        pass
-
-    def request(self, driver, addr, op, args, timeout):
-        self.requests.append((str(addr), op))
-
-
 @pytest.fixture
 def planner():
     from mrs_bridge.drivers.localplanner import VFHDriver
@@ -253,10 +210,10 @@ def test_a_passed_through_velocity_times_out_at_the_planner(planner):
     drv.update(clock.t)
     assert _base_cmds(srv) == [(0.3, 0.0), (0.0, 0.0)]  # zero, once
     drv.on_input(parse_device("r0:position2d:0"), "data", Position2dData(1.0, (0, 0, 0), (0, 0, 0)).to_dict())
-    assert srv.published[-1].timed_out
+    assert srv.published[-1][1].timed_out
     drv.on_cmd(out, {"v": 0.2, "w": 0.0})
     drv.on_input(parse_device("r0:position2d:0"), "data", Position2dData(1.1, (0, 0, 0), (0, 0, 0)).to_dict())
-    assert not srv.published[-1].timed_out
+    assert not srv.published[-1][1].timed_out
 
 
 def test_the_planner_output_latches_presses_its_base_and_refuses_goals(planner):
@@ -264,7 +221,7 @@ def test_the_planner_output_latches_presses_its_base_and_refuses_goals(planner):
     out = parse_device("r0:position2d:1")
     drv.on_rpc(out, "goto", {"goal": [2.0, 0.0, 0.0]})
     assert drv.on_rpc(out, "estop", {}) == {"estop": True}
-    assert ("r0:position2d:0", "estop") in srv.requests
+    assert ("r0:position2d:0", "estop") in srv.requested()
     assert _base_cmds(srv)[-1] == (0.0, 0.0) and drv.planner.goal is None
     with pytest.raises(Latched):
         drv.on_cmd(out, {"goal": [2.0, 0.0, 0.0]})
@@ -275,7 +232,7 @@ def test_the_planner_output_latches_presses_its_base_and_refuses_goals(planner):
     assert e.value.code == "estop"
     n = len(srv.sent)
     drv.on_input(parse_device("r0:position2d:0"), "data", Position2dData(1.0, (0, 0, 0), (0, 0, 0)).to_dict())
-    assert len(srv.sent) == n and srv.published[-1].estop  # nothing commanded while latched
+    assert len(srv.sent) == n and srv.published[-1][1].estop  # nothing commanded while latched
     drv.on_rpc(out, "release", {})
     drv.on_rpc(out, "goto", {"goal": [2.0, 0.0, 0.0]})
     assert drv.planner.goal is not None

@@ -497,10 +497,9 @@ def test_a_full_inbox_drops_cmds_and_answers_rpcs_busy():
     """Zenoh's callbacks never wait and never queue more than INBOX_MAX items from the network."""
     import textwrap
 
-    from conftest import FakeSession
-
     from mrs_bridge.config import parse_config
     from mrs_bridge.server import INBOX_MAX, DeviceServer
+    from rsal.testing import FakeSession
 
     class Query:
         payload = None

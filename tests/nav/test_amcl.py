@@ -30,6 +30,7 @@ from mrs_bridge.nav.amcl import (
     systematic_indices,
 )
 from mrs_bridge.nav.grid import NavGrid
+from rsal.geometry import compose
 from simulator import load_world
 from simulator.controllers import wander
 from simulator.presets import pioneer3at
@@ -63,11 +64,6 @@ def _room(size: float = 20.0) -> NavGrid:
     occ = np.zeros((n, n), dtype=bool)
     occ[:2, :] = occ[-2:, :] = occ[:, :2] = occ[:, -2:] = True
     return NavGrid.from_occupancy(occ, 0.05, (0.0, 0.0))
-
-
-def _compose(p, d):
-    c, s = math.cos(p[2]), math.sin(p[2])
-    return (p[0] + c * d[0] - s * d[1], p[1] + s * d[0] + c * d[1], p[2] + d[2])
 
 
 def _ang(a):
@@ -220,9 +216,9 @@ def _at(amcl: Amcl, pose, n: int = 4000) -> None:
 def test_motion_model_moves_particles_by_the_robot_frame_odometry_change_in_any_odometry_frame():
     delta = (1.0, 0.3, 0.4)  # robot-frame motion: forward, left, turn
     odom0 = (5.0, -3.0, 2.0)  # odometry frame unrelated to the map
-    odom1 = _compose(odom0, delta)
+    odom1 = compose(odom0, delta)
     start = (10.0, 10.0, -0.7)
-    expect = _compose(start, delta)
+    expect = compose(start, delta)
 
     exact = _anchored(AmclParams(seed=1, odom_alpha1=0, odom_alpha2=0, odom_alpha3=0, odom_alpha4=0), odom0)
     _at(exact, start)
@@ -374,7 +370,7 @@ def test_estimate_follows_odometry_between_updates():
     assert not amcl.odometry((2.0, 1.1, 0.3))  # 0.1 m and 17 deg: no filter update yet
     m1, _ = amcl.estimate()
     np.testing.assert_array_equal(amcl.particles, before)
-    np.testing.assert_allclose(m1, _compose(m0, (0.0, 0.1, 0.3)), atol=1e-9)  # 0.1 m to the robot's left
+    np.testing.assert_allclose(m1, compose(m0, (0.0, 0.1, 0.3)), atol=1e-9)  # 0.1 m to the robot's left
 
 
 def test_hypotheses_are_clusters_heaviest_first_and_join_across_the_yaw_seam():

@@ -21,12 +21,12 @@ from mrs_bridge.nav.local import (
     corridor_clear,
     free_path_length,
     polar_ranges,
-    wrap,
 )
 from mrs_bridge.nav.localsim import Agent, in_contact, laser_points, run
 from mrs_bridge.nav.nd import ND
 from mrs_bridge.nav.snd import SND
 from mrs_bridge.nav.vfh import VFH
+from rsal.geometry import wrap
 from simulator import load_world
 from simulator.presets import box, pioneer2dx, urg04lx
 from simulator.world import World

@@ -26,7 +26,8 @@ import pytest
 import mrs_bridge.drivers  # noqa: F401  (registers the built-in drivers)
 from mrs_bridge.config import ConfigError, parse_config
 from mrs_bridge.server import DeviceServer
-from tests.conftest import MAPS, ROOT, FakeSession, Proc, free_port, rsal_cmd, wait_until
+from rsal.testing import FakeSession
+from tests.conftest import MAPS, ROOT, Proc, free_port, rsal_cmd, wait_until
 
 NAV = ROOT / "docs" / "navigation.md"
 CONF = ROOT / "docs" / "configuration.md"

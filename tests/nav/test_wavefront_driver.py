@@ -15,6 +15,7 @@ import pytest
 from mrs_bridge.config import parse_config
 from mrs_bridge.drivers.wavefront import WavefrontDriver
 from rsal.msgs import ErrorCode, MapData, Position2dData, RpcError, VelocityCmd
+from rsal.testing import FakeServer
 
 CONFIG = """
 [[driver]]
@@ -25,33 +26,6 @@ safety_dist = 0.1
 distance_epsilon = 0.4
 angle_epsilon = 10
 """
-
-
-class FakeServer:
-    """What the driver sees of its server: everything it sends is recorded."""
-
-    def __init__(self):
-        self.sent: list[tuple[str, object]] = []
-        self.events: list[dict] = []
-        self.published: list = []
-        self.requests: list[tuple[str, str]] = []
-        self.shared: dict = {}
-        self.warnings: list[str] = []
-
-    def send(self, addr, msg):
-        self.sent.append((str(addr), msg))
-
-    def publish(self, addr, msg):
-        self.published.append(msg)
-
-    def publish_event(self, addr, msg):
-        self.events.append(msg)
-
-    def request(self, driver, addr, op, args, timeout):
-        self.requests.append((str(addr), op))
-
-    def _warn(self, key, text, level=None):  # the server's rate-limited log
-        self.warnings.append(text)
 
 
 def room() -> dict:
@@ -66,7 +40,7 @@ def driver():
     srv = FakeServer()
     drv = WavefrontDriver(cfg, srv)
     drv.setup()
-    assert ("r0:map:0", "get") in srv.requests and ("r0:position2d:1", "describe") in srv.requests
+    assert ("r0:map:0", "get") in srv.requested() and ("r0:position2d:1", "describe") in srv.requested()
     addr = cfg.requires[0]
     drv.on_reply(cfg.requires[2], "get", room(), None)
     drv.on_reply(addr, "describe", {"geometry": {"robot_radius": 0.25, "frame": "odom"}}, None)
@@ -88,7 +62,7 @@ def test_a_goal_is_handed_over_in_the_odometry_frame(driver):
     # the straight line is free: the one target is the goal, moved into the odometry frame
     x, y, yaw = goals(srv)[-1]
     assert (x, y, yaw) == pytest.approx((4.0, 2.0, math.pi / 2))
-    assert srv.published[-1].status == "driving"
+    assert srv.published[-1][1].status == "driving"
 
 
 def test_an_invalid_goal_while_driving_changes_nothing(driver):
@@ -101,7 +75,7 @@ def test_an_invalid_goal_while_driving_changes_nothing(driver):
     # no stop, no event: the first goal goes on and is still handed over
     assert not any(isinstance(m, VelocityCmd) for _, m in srv.sent[sent:]) and srv.events == []
     drv.update(1e9)
-    assert srv.published[-1].status == "driving" and srv.published[-1].goal == (5.0, 3.0, 0.0)
+    assert srv.published[-1][1].status == "driving" and srv.published[-1][1].goal == (5.0, 3.0, 0.0)
     assert drv.on_rpc(drv.cfg.provides[0], "waypoints", {})["waypoints"]
 
 
@@ -111,7 +85,7 @@ def test_an_invalid_goal_when_idle_is_reported_invalid(driver):
         drv.on_rpc(drv.cfg.provides[0], "set_goal", {"goal": [0.05, 0.05, 0.0]})
     assert e.value.code == ErrorCode.NOT_FOUND and e.value.message.startswith("invalid goal: goal (0.05, 0.05)")
     drv.update(1.0)
-    last = srv.published[-1]
+    last = srv.published[-1][1]
     assert last.status == "invalid" and "obstacle" in last.message
     assert drv.on_rpc(drv.cfg.provides[0], "waypoints", {}) == {"waypoints": []}
 

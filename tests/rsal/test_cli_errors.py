@@ -2,7 +2,7 @@
 (nothing listening, a device that is announced but silent, a port in use, a bad endpoint), exits 1
 with exactly one line on stderr that names the failure; ``-v`` keeps the traceback.
 
-The formatter and the safety net (:mod:`rsal.errors`) are tested in-process; the commands run as
+The formatter and the safety net (:mod:`rsal.errnet`) are tested in-process; the commands run as
 real processes on loopback ports of their own, with short timeouts, and are cleaned up by PID.
 """
 
@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from rsal.errors import OneLineFormatter, describe, install_thread_hook, run_guarded
+from rsal.errnet import OneLineFormatter, describe, install_thread_hook, run_guarded
 from rsal.msgs import ErrorCode, RpcError
 from tests.conftest import ROOT, free_port, rsal_cmd, wait_until
 

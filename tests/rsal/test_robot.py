@@ -1,8 +1,9 @@
 """Robots (rsal/robot.py) on real device proxies over an in-memory fabric: no Zenoh, no server.
 
-``FakeFabric`` stands in for :class:`rsal.client.Fabric` the way httpx's ``MockTransport`` stands
-in for the network: proxies declare their subscribers on it, the test pushes msgpack samples into
-them, and commands and RPCs are recorded (``describe`` answered from a table).
+:class:`rsal.testing.FakeFabric` stands in for :class:`rsal.client.Fabric` the way httpx's
+``MockTransport`` stands in for the network: proxies declare their subscribers on its in-memory
+session, the test pushes msgpack samples into them, and commands and RPCs are recorded
+(``describe`` answered from a table).
 """
 
 from __future__ import annotations
@@ -14,87 +15,12 @@ import numpy as np
 import pytest
 from conftest import wait_until
 
-from rsal import keys, msgs
 from rsal.behaviours import BehaviourParams
 from rsal.data import Position
-from rsal.devices import Blobfinder, Device, Gripper, Laser, Position2d, Ranger, Simulation, Sonar
-from rsal.keys import DeviceAddr, parse_device
-from rsal.msgs import BlobData, BlobfinderData, Position2dData, RangerData, RpcError, VelocityCmd
+from rsal.devices import Blobfinder, Gripper, Laser, Position2d, Ranger, Simulation, Sonar
+from rsal.msgs import BlobData, BlobfinderData, Position2dData, RangerData
 from rsal.robot import ExploreRobot, Pioneer, Robot, RobotError
-
-
-class _Sub:
-    def __init__(self, session, key, cb):
-        self.session, self.key, self.cb = session, key, cb
-
-    def undeclare(self):
-        self.session.subs.pop(self.key, None)
-
-
-class FakeSession:
-    def __init__(self):
-        self.subs: dict[str, _Sub] = {}
-
-    def declare_subscriber(self, key, cb):
-        sub = _Sub(self, key, cb)
-        self.subs[key] = sub
-        return sub
-
-
-class InlineDispatcher:
-    def submit(self, fn, *args):
-        fn(*args)
-
-
-class FakeFabric:
-    def __init__(self):
-        self.session = FakeSession()
-        self.dispatcher = InlineDispatcher()
-        self._proxies: dict = {}
-        self.geometry: dict[DeviceAddr, dict] = {}
-        self.sent: list[tuple[DeviceAddr, object]] = []
-        self.rpcs: list[tuple[DeviceAddr, str, dict]] = []
-
-    def callback(self, fn):  # as Fabric.callback without direct_callbacks
-        return fn
-
-    def device(self, cls, text: str, geometry: dict | None = None):
-        a = parse_device(text)
-        p = cls(self, a)
-        self._proxies[a] = p
-        if geometry is not None:
-            self.geometry[a] = geometry
-        return p
-
-    def push(self, dev: Device, msg) -> None:
-        """A data sample arriving from the network."""
-        payload = msgs.encode(msg)
-        sample = SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: payload))
-        self.session.subs[keys.data_key(dev.addr)].cb(sample)
-
-    def rpc(self, addr, op, args=None, *, timeout=5.0):
-        self.rpcs.append((addr, op, dict(args or {})))
-        if op == "describe":
-            if addr not in self.geometry:
-                raise RpcError(msgs.ErrorCode.TIMEOUT, "no reply", keys.rpc_key(addr, op))
-            return msgs.Describe(addr.node, addr.interface, addr.index, "fake", 10.0, self.geometry[addr]).to_dict()
-        return {"ok": True}
-
-    def send(self, addr, msg) -> None:
-        self.sent.append((addr, msg))
-
-    def hold(self, addr, msg) -> None:  # as Fabric.hold: sent now (the re-sends are not modelled)
-        self.sent.append((addr, msg))
-
-    def release(self, addr) -> None:
-        pass
-
-    def _forget(self, addr) -> None:
-        self._proxies.pop(addr, None)
-
-    def velocities(self) -> list[tuple[float, float]]:
-        return [(m.v, m.w) for a, m in self.sent if isinstance(m, VelocityCmd)]
-
+from rsal.testing import FakeFabric
 
 LASER_GEOMETRY = {"kind": "laser", "pose": [0.0, 0.0, 0.0], "sensors": [{"pose": [0.0, 0.0, 0.0]}]}
 # eight front sonars like a Pioneer-2DX: -90 .. +90 degrees

@@ -20,11 +20,9 @@ from rsal.watch import (
     Watcher,
     WatchOptions,
     beam_layout,
-    compose,
     cov_ellipse,
     ellipse_points,
     footprint,
-    inverse,
     map_image,
     map_transform,
     scan_to_world,
@@ -38,14 +36,6 @@ LASER_GEO = {  # r0:laser:0 of maps/testroom.world: a URG 0.13 m ahead of the ce
 
 
 # ---------------------------------------------------------------------------- pure conversions
-def test_compose_and_inverse_are_planar_pose_algebra():
-    a = np.array([1.0, 2.0, math.pi / 2])
-    assert np.allclose(compose(a, [1.0, 0.0, 0.0]), [1.0, 3.0, math.pi / 2])
-    assert np.allclose(compose(a, inverse(a)), [0.0, 0.0, 0.0])
-    many = compose(a, np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
-    assert np.allclose(many[:, :2], [[1.0, 3.0], [0.0, 2.0]])
-
-
 def test_laser_scan_lands_on_the_testroom_walls_in_the_world_frame():
     # r0 at (-2, 0) facing +x: beam 0 deg hits the box's west face x = 2.0 (range 3.87 m), beam +90
     # the north wall y = 3.8 (range 3.80 m); docs in maps/testroom.world.
