@@ -262,8 +262,9 @@ class Runner:
             flags += ["--nav", s.nav]
         if s.nav_robots:
             flags += ["--nav-robots", ",".join(s.nav_robots)]
-        if s.speedup is not None:
-            flags += ["--speedup", f"{s.speedup:g}"]
+        speedup = getattr(self.args, "speedup", None) or s.speedup
+        if speedup is not None:
+            flags += ["--speedup", f"{speedup:g}"]
         if s.seed is not None:
             flags += ["--seed", str(s.seed)]
         argv = [sys.executable, "-m", "rsal.cli", "sim", str(s.world), *flags]
@@ -559,6 +560,12 @@ def register(sub) -> None:
         action="append",
         metavar="KEY=VALUE",
         help="override a global argument (repeatable; VALUE is YAML: 2, 1.5, true, r0)",
+    )
+    p.add_argument(
+        "--speedup",
+        type=positive,
+        help="run the simulator this many times faster than real time (overrides the scenario's speedup); "
+        "agents, durations and timeouts follow the simulation's clock, so the run means the same",
     )
     p.add_argument("--timeout", type=positive, help="seconds after which the run fails (default: the end's timeout)")
     p.add_argument("--progress", type=positive, default=5.0, help="seconds between progress lines (default 5)")

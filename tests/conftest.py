@@ -134,6 +134,31 @@ def fabric_factory():
         f.close()
 
 
+# Scenario tests run the simulator this many times faster than real time; their agents follow the
+# simulation's clock (sim_time), so they behave as at real time.
+SPEEDUP = "3"
+
+
+@pytest.fixture
+def sim_time():
+    """``follow(session, node="sim")``: this process follows that simulation's clock
+    (:func:`rsal.clock.use_sim_time`) until the end of the test."""
+    from rsal.clock import WallClock, set_clock, use_sim_time
+
+    made = []
+
+    def follow(session, node: str = "sim"):
+        c = use_sim_time(session, node)
+        made.append(c)
+        assert c.wait_started(60.0), f"no time from the simulation of node {node!r}"
+        return c
+
+    yield follow
+    set_clock(WallClock())
+    for c in made:
+        c.close()
+
+
 class LoopThread:
     """An asyncio loop on a daemon thread for tests that host agents in-process; ``run(coro)``
     waits for the result (``timeout`` seconds, the instance's default unless given)."""

@@ -22,7 +22,7 @@ from rsal.client import Fabric
 from rsal.keys import parse_device
 from rsal.msgs import RpcError
 from rsal.transport import TransportArgs
-from tests.conftest import MAPS, LoopThread, free_port, rsal_cmd, wait_until
+from tests.conftest import MAPS, SPEEDUP, LoopThread, free_port, rsal_cmd, wait_until
 
 WORLD = MAPS / "collect.world"
 BLOBS = ("blob0", "blob1", "blob2")
@@ -126,12 +126,14 @@ def test_agents_reject_bad_arguments():
 
 
 @pytest.fixture
-def sim(procs):
+def sim(procs, sim_time):
     """``rsal sim maps/collect.world`` with the navigation stack for c1 and c2, an agent host and a
     simulation proxy on its endpoint."""
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
-    p = procs(rsal_cmd("sim", str(WORLD), "--listen", ep, "--nav", "vfh", "--nav-robots", "c1,c2"))
+    p = procs(
+        rsal_cmd("sim", str(WORLD), "--listen", ep, "--nav", "vfh", "--nav-robots", "c1,c2", "--speedup", SPEEDUP)
+    )
     lt = LoopThread(120.0)
     host = None
     fabric = None
@@ -151,6 +153,7 @@ def sim(procs):
                 return False
 
         wait_until(answers, 90, f"the simulation to answer rpcs\n{p.output()}", interval=0.5)
+        sim_time(host.session)
         yield {"host": host, "loop": lt, "sim": simdev, "proc": p}
     finally:
         if host is not None:

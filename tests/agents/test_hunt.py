@@ -26,7 +26,7 @@ from agents.runtime import Agent, AgentHost
 from agents.services import NewGoal, Outcome
 from rsal.robot import RobotError
 from rsal.transport import TransportArgs, open_session
-from tests.conftest import MAPS, ROOT, LoopThread, free_port, rsal_cmd, wait_until
+from tests.conftest import MAPS, ROOT, SPEEDUP, LoopThread, free_port, rsal_cmd, wait_until
 
 
 class Observer(Agent):
@@ -53,16 +53,30 @@ class Observer(Agent):
 
 
 @pytest.fixture
-def hunt(procs):
+def hunt(procs, sim_time):
     """Start ``rsal sim WORLD --nav vfh --nav-robots ...``; yields ``start(world, nav_robots)`` which
     returns an agent host connected to it and its observer."""
     state: dict = {}
 
     def start(world: str, nav_robots: str):
         ep = f"tcp/127.0.0.1:{free_port()}"
-        sim = procs(rsal_cmd("sim", str(MAPS / world), "--listen", ep, "--nav", "vfh", "--nav-robots", nav_robots))
+        sim = procs(
+            rsal_cmd(
+                "sim",
+                str(MAPS / world),
+                "--listen",
+                ep,
+                "--nav",
+                "vfh",
+                "--nav-robots",
+                nav_robots,
+                "--speedup",
+                SPEEDUP,
+            )
+        )
         lt = LoopThread(90.0)
         session = open_session(TransportArgs(connect=[ep]))
+        sim_time(session)
         host = AgentHost(session)
         lt.run(host.__aenter__())
         obs = Observer()

@@ -61,7 +61,10 @@ def pid_gone(pid: int) -> bool:
 
 
 def test_wander_demo_runs_for_its_duration_and_succeeds(procs):
-    p = procs(rsal_cmd("run", "deploy/scenarios/wander.yaml", "--app", "wallfollow", "--progress", "2"))
+    # at four times real time: the agent, the duration and the progress follow the simulation's clock
+    p = procs(
+        rsal_cmd("run", "deploy/scenarios/wander.yaml", "--app", "wallfollow", "--progress", "2", "--speedup", "4")
+    )
     out = finished(p, 150, "rsal run to end the wander scenario")
     assert p.p.returncode == 0, out
     assert re.search(r"\[run\] started sim \(pid \d+\): rsal sim maps/testroom.world --listen tcp/127.0.0.1:\d+", out)
@@ -70,6 +73,9 @@ def test_wander_demo_runs_for_its_duration_and_succeeds(procs):
     assert re.search(r"\[run\] t=[\d.]+ s agents 1/1 alive, [\d.]+/20 s", out)
     assert "[run] result: ok — ran 20 s with every agent started and no failed outcome" in out
     assert re.search(r"\[run\] elapsed [\d.]+ s; agents started 1/1; outcomes: none", out)
+    assert "[host wf0] on the simulation's clock (RSAL_SIM_TIME=sim)" in out
+    wall = float(re.search(r"times on the simulation's clock \(([\d.]+) s of wall time\)", out).group(1))
+    assert wall < 20.0, f"20 simulated seconds at speed-up 4 took {wall} s of wall time"
     assert "[host wf0] wf0 stopped (SIGTERM)" in out  # hosts stopped before the simulator
     assert out.index("[host wf0] wf0 stopped") < out.index("[sim] summary")
     assert "Traceback" not in out
