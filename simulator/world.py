@@ -35,6 +35,7 @@ import numpy as np
 import pymunk
 import pymunk.batch
 
+from .drive import Drives
 from .errors import ModelError, OutOfWorld, SimulatorError
 from .gridmap import GridMap
 from .raycast import CircleIndex
@@ -58,8 +59,6 @@ _F = pymunk.batch.BodyFields
 _MOTOR_GET = _F.BODY_ID | _F.ANGLE | _F.VELOCITY | _F.ANGULAR_VELOCITY | _F.FORCE | _F.TORQUE
 _MOTOR_SET = _F.VELOCITY | _F.ANGULAR_VELOCITY | _F.FORCE | _F.TORQUE
 _POSE_GET = _F.BODY_ID | _F.POSITION | _F.ANGLE  # per body [x, y, angle]
-# Per-robot state arrays, one row per robot.
-_ROBOT_ARRAYS = ("_cmd", "_vel", "_limits", "_odom", "_bias", "_noise", "_prev", "_stall", "_drive", "_mass", "_moment")
 _wrap = wrap
 
 
@@ -113,18 +112,7 @@ class World:
         self._circles: dict[str, CircleIndex] = {}  # per step: the bodies rays see, by flag
         self.sensors: dict[str, Sensor] = {cls.kind: cls(self) for cls in SENSOR_TYPES}
         self._add_walls()
-        n0 = 0
-        self._cmd = np.zeros((n0, 2))
-        self._vel = np.zeros((n0, 2))
-        self._limits = np.zeros((n0, 4))
-        self._odom = np.zeros((n0, 3))
-        self._bias = np.zeros((n0, 3))
-        self._noise = np.zeros((n0, 3))
-        self._prev = np.zeros((n0, 3))
-        self._stall = np.zeros(n0, dtype=bool)
-        self._drive = np.zeros((n0, 2))  # (v, w) the motors applied in the last step
-        self._mass = np.zeros(n0)  # kg, and moment of inertia in kg m^2, of each robot body
-        self._moment = np.zeros(n0)
+        self.drives = Drives()
         # Batch buffers, reused: pymunk allocates one per Buffer and never frees it.
         self._get_buf = pymunk.batch.Buffer()  # reads fill its own arrays
         self._set_buf = pymunk.batch.Buffer()  # writes are handed a numpy array each time
@@ -184,17 +172,8 @@ class World:
             self._robots.append(model)
             e = np.asarray(spec.odom_error, dtype=float)
             bias = self.rng.uniform(-1.0, 1.0, 3) * e
-            self._cmd = np.vstack([self._cmd, [0.0, 0.0]])
-            self._vel = np.vstack([self._vel, [0.0, 0.0]])
-            self._limits = np.vstack([self._limits, [*spec.max_speed, *spec.max_accel]])
-            self._odom = np.vstack([self._odom, [0.0, 0.0, 0.0]])
-            self._bias = np.vstack([self._bias, bias])
-            self._noise = np.vstack([self._noise, np.asarray(spec.odom_noise, dtype=float)])
-            self._prev = np.vstack([self._prev, [x, y, a]])
-            self._stall = np.append(self._stall, False)
-            self._drive = np.vstack([self._drive, [0.0, 0.0]])
-            self._mass = np.append(self._mass, body.mass)
-            self._moment = np.append(self._moment, body.moment)
+            limits = (*spec.max_speed, *spec.max_accel)
+            self.drives.add((x, y, a), limits, bias, np.asarray(spec.odom_noise, dtype=float), body.mass, body.moment)
             for sensor in self.sensors.values():
                 sensor.add(model)
         self._models_changed()
@@ -228,7 +207,7 @@ class World:
     @property
     def poses(self) -> np.ndarray:
         """``(x, y, yaw)`` of every robot by row after the last step (or :meth:`set_pose`)."""
-        return self._prev
+        return self.drives.prev
 
     def _model(self, name: str) -> Model:
         try:
@@ -273,8 +252,8 @@ class World:
         if m.in_space:
             self.space.reindex_shapes_for_body(b)
         if m.row >= 0:
-            self._prev[m.row] = vals
-            self._vel[m.row] = 0.0
+            self.drives.prev[m.row] = vals
+            self.drives.vel[m.row] = 0.0
         self._circles = {}
 
     def add_model(self, spec: ModelSpec) -> None:
@@ -295,12 +274,8 @@ class World:
             self.space.remove(m.shape, m.body)
         del self._models[name]
         if m.row >= 0:
-            r = m.row
-            keep = np.ones(len(self._robots), dtype=bool)
-            keep[r] = False
-            for attr in _ROBOT_ARRAYS:
-                setattr(self, attr, getattr(self, attr)[keep])
-            self._robots.pop(r)
+            self.drives.remove(m.row)
+            self._robots.pop(m.row)
             for i, rm in enumerate(self._robots):
                 rm.row = i
         self._models_changed()
@@ -337,34 +312,34 @@ class World:
         m = self._robot(name)
         if not (math.isfinite(v) and math.isfinite(w)):
             raise ModelError(f"set_velocity({name!r}): v={v!r}, w={w!r} must be finite")
-        vmax, wmax = float(self._limits[m.row, 0]), float(self._limits[m.row, 1])
-        self._cmd[m.row] = (min(max(float(v), -vmax), vmax), min(max(float(w), -wmax), wmax))
+        vmax, wmax = float(self.drives.limits[m.row, 0]), float(self.drives.limits[m.row, 1])
+        self.drives.cmd[m.row] = (min(max(float(v), -vmax), vmax), min(max(float(w), -wmax), wmax))
 
     def halt(self, name: str) -> None:
         """Stop a robot at once, past its acceleration limits (a brake: command timeout, emergency stop)."""
         m = self._robot(name)
-        self._cmd[m.row] = (0.0, 0.0)
-        self._vel[m.row] = (0.0, 0.0)
+        self.drives.cmd[m.row] = (0.0, 0.0)
+        self.drives.vel[m.row] = (0.0, 0.0)
 
     def velocity(self, name: str) -> tuple[float, float]:
         """The robot's current ``(v, w)`` after acceleration limits and collisions."""
-        return tuple(float(x) for x in self._vel[self._robot(name).row])  # type: ignore[return-value]
+        return tuple(float(x) for x in self.drives.vel[self._robot(name).row])  # type: ignore[return-value]
 
     def commanded_velocity(self, name: str) -> tuple[float, float]:
-        return tuple(float(x) for x in self._cmd[self._robot(name).row])  # type: ignore[return-value]
+        return tuple(float(x) for x in self.drives.cmd[self._robot(name).row])  # type: ignore[return-value]
 
     def odometry(self, name: str) -> tuple[float, float, float]:
         """Odometric pose: starts at (0, 0, 0) where the robot was created and drifts."""
-        o = self._odom[self._robot(name).row]
+        o = self.drives.odom[self._robot(name).row]
         return (float(o[0]), float(o[1]), float(_wrap(o[2])))
 
     def set_odometry(self, name: str, x: float, y: float, yaw: float) -> None:
         """Reset the odometric pose (Player's position2d ``set_odom``)."""
-        self._odom[self._robot(name).row] = (float(x), float(y), float(yaw))
+        self.drives.odom[self._robot(name).row] = (float(x), float(y), float(yaw))
 
     def stalled(self, name: str) -> bool:
         """True when the robot is commanded to move but is blocked (Player's ``stall``)."""
-        return bool(self._stall[self._robot(name).row])
+        return bool(self.drives.stall[self._robot(name).row])
 
     # ------------------------------------------------------------------ sensors (delegating)
     def ranger(self, name: str, index: int = 0) -> RangerReading | None:
@@ -438,9 +413,7 @@ class World:
         dt = self.spec.interval_sim
         n = len(self._robots)
         if n:
-            # 1. acceleration-limited velocity towards the command.
-            dv = np.clip(self._cmd - self._vel, -self._limits[:, 2:4] * dt, self._limits[:, 2:4] * dt)
-            self._vel += dv
+            self.drives.accelerate(dt)  # 1. acceleration-limited velocity towards the command
         # 2. physics.
         h = dt / self.substeps
         for k in range(self.substeps):
@@ -450,9 +423,7 @@ class World:
         self.time = (self.steps + 1) * dt
         self.steps += 1
         if n:
-            pose = self._robot_poses()
-            self._update_odometry(pose, dt)
-            self._prev = pose
+            self.drives.odometry(self._robot_poses(), dt, self.rng)  # 3.
         self._circles = {}
         # 4. sensors (and the grippers' actuators), in the order of SENSOR_TYPES.
         for sensor in self.sensors.values():
@@ -481,41 +452,10 @@ class World:
         return self._body_rows, vals
 
     def _run_motors(self, h: float, first: bool) -> None:
-        """Drive every robot body for one pymunk sub-step of ``h`` seconds, in one batched pass.
-
-        The motor is a force and torque that make pymunk's velocity integration (damped previous
-        velocity plus force over mass) land exactly on the commanded ``(v, w)``, so the velocity is
-        set *before* contacts are solved: walls and other bodies still stop or deflect the robot,
-        and the next position update moves it with the corrected velocity. The linear velocity is
-        the chord of the step's arc along the heading at mid-step (exact integration of the
-        unicycle model). On the first sub-step of a step, a robot whose drive changed gets the new
-        velocity at once, so it moves from this step on; an unchanged drive leaves the contact
-        corrections of the last step in place."""
+        """Drive every robot body for one pymunk sub-step of ``h`` seconds, in one batched pass
+        (the motor maths is :meth:`simulator.drive.Drives.motors`)."""
         rows, b = self._space_bodies(_MOTOR_GET, 7)
-        b = b.copy()  # becomes the write buffer: [angle, vx, vy, w, fx, fy, torque]
-        r = rows >= 0
-        rr = rows[r]
-        v, w = self._vel[rr, 0], self._vel[rr, 1]
-        half = 0.5 * h * w
-        small = np.abs(half) <= 1e-12
-        chord = v * np.where(small, 1.0, np.sin(half) / np.where(small, 1.0, half))
-        ang = b[r, 0]
-        cur = b[r, 1:4]
-        if first:
-            changed = (self._vel[rr] != self._drive[rr]).any(axis=1)
-            if changed.any():
-                a0 = ang[changed] + half[changed]
-                cur[changed] = np.stack([chord[changed] * np.cos(a0), chord[changed] * np.sin(a0), w[changed]], 1)
-            self._drive[rr] = self._vel[rr]
-        # Heading after pymunk's position update (angle + w h), then half the step's turn on.
-        a = ang + cur[:, 2] * h + half
-        damp = self.space.damping**h
-        mass = self._mass[rr]
-        b[r, 1:4] = cur
-        b[r, 4] = mass * (chord * np.cos(a) - cur[:, 0] * damp) / h
-        b[r, 5] = mass * (chord * np.sin(a) - cur[:, 1] * damp) / h
-        b[r, 6] = self._moment[rr] * (w - cur[:, 2] * damp) / h
-        self._set_buf.set_float_buf(np.ascontiguousarray(b[:, 1:]).reshape(-1))
+        self._set_buf.set_float_buf(self.drives.motors(b, rows, h, self.space.damping, first))
         pymunk.batch.set_space_bodies(self.space, _MOTOR_SET, self._set_buf)
 
     def _robot_poses(self) -> np.ndarray:
@@ -529,28 +469,6 @@ class World:
                 if not m.in_space:
                     pose[m.row] = (m.body.position.x, m.body.position.y, m.body.angle)
         return pose
-
-    def _update_odometry(self, pose: np.ndarray, dt: float) -> None:
-        d = pose - self._prev
-        dth = _wrap(d[:, 2])
-        # Displacement in the frame of the mid-step heading (where the chord of an arc points).
-        mid_true = self._prev[:, 2] + 0.5 * dth
-        c, s = np.cos(mid_true), np.sin(mid_true)
-        dx = c * d[:, 0] + s * d[:, 1]
-        dy = -s * d[:, 0] + c * d[:, 1]
-        # Achieved velocity in the robot frame, and stall detection.
-        achieved = np.stack([dx / dt, dth / dt], axis=1)
-        expect = np.abs(self._vel[:, 0]) * dt
-        self._stall = (expect > 1e-3) & (np.hypot(dx, dy) < 0.3 * expect)
-        self._vel[:, 0] = np.where(self._stall, achieved[:, 0], self._vel[:, 0])
-        nz = self.rng.standard_normal((len(dx), 3)) * self._noise
-        ox = dx * (1.0 + self._bias[:, 0]) + nz[:, 0] * np.abs(dx)
-        oy = dy * (1.0 + self._bias[:, 1]) + nz[:, 1] * np.abs(dx)
-        ot = dth * (1.0 + self._bias[:, 2]) + nz[:, 2] * np.abs(dth)
-        mid = self._odom[:, 2] + 0.5 * ot
-        self._odom[:, 0] += np.cos(mid) * ox - np.sin(mid) * oy
-        self._odom[:, 1] += np.sin(mid) * ox + np.cos(mid) * oy
-        self._odom[:, 2] = _wrap(self._odom[:, 2] + ot)
 
     # ------------------------------------------------------------------ summary
     def describe(self) -> dict:
