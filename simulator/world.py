@@ -22,7 +22,9 @@ The world knows no sensor kind by name except to keep its historical read method
 The simulation interface of Player (and the thesis's ``setPositionOf`` for mixed-reality proxies)
 is :meth:`World.set_pose` / :meth:`World.get_pose` by model name, :meth:`World.add_model`,
 :meth:`World.remove_model`, :meth:`World.pause`, :meth:`World.step` and :meth:`World.reset`.
-Runs are deterministic for a given seed when stepped.
+Runs are deterministic for a given seed when stepped. The drives' and odometry's vectorised maths
+is in :mod:`simulator.drive`; what is left here (about 480 lines) is the body table shared by the
+plug-ins (batched pymunk reads, circles for the ray caster) and the simulation interface.
 """
 
 from __future__ import annotations
