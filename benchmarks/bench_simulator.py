@@ -83,8 +83,8 @@ def child(n: int, sim_seconds: float, seed: int) -> dict:
     world.step()  # compile/warm up
     wander(world)
     # One tick of the same lasers through the numpy reference and the compiled caster.
-    f = world._fans
-    pose = world._prev[f["robot"]]
+    f = world.sensors["ranger"].fans
+    pose = world.poses[f["robot"]]
     c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
     fans = {
         "x": pose[:, 0] + c * f["lx"] - s * f["ly"],
@@ -95,7 +95,7 @@ def child(n: int, sim_seconds: float, seed: int) -> dict:
         "rmax": f["rmax"],
         "owner": f["uids"][f["robot"]],
     }
-    circles = world._circle_index()
+    circles = world.circles()
     k = max(1, 2000 // max(n, 1))
     t = time.perf_counter()
     for _ in range(k):

@@ -20,6 +20,9 @@ from collections.abc import Callable, Sequence
 
 from .spec import (
     BlobfinderSpec,
+    BumperSegmentSpec,
+    BumperSpec,
+    FiducialSpec,
     GripperSpec,
     ModelSpec,
     RangerSensorSpec,
@@ -34,8 +37,10 @@ __all__ = [
     "blob",
     "blobfinder",
     "box",
+    "fiducial_finder",
     "gripper",
     "pioneer2dx",
+    "pioneer_bumper",
     "pioneer2dx_sonar",
     "pioneer3at",
     "pioneer3at_sonar",
@@ -172,6 +177,44 @@ def gripper(
     )
 
 
+def pioneer_bumper(
+    pose: Sequence[float] = (0.0, 0.0, 0.0),
+    size: tuple[float, float] = (0.44, 0.38),
+    *,
+    clearance: float = 0.015,
+    name: str = "bumper",
+) -> BumperSpec:
+    """The Pioneer bumper rings: 5 segments across the front and 5 across the rear of a body of
+    ``size`` (x, y) m, ``clearance`` m outside the hull as the bumper skirts are. Segments 0-4 are
+    the front from left to right, 5-9 the rear from right to left (each as seen from the robot)."""
+    sx, sy = float(size[0]), float(size[1])
+    seg = sy / 5
+    ys = [sy / 2 - seg * (i + 0.5) for i in range(5)]
+    front = [BumperSegmentSpec((sx / 2 + clearance, y, 0.0), seg) for y in ys]
+    rear = [BumperSegmentSpec((-sx / 2 - clearance, -y, math.pi), seg) for y in ys]
+    return BumperSpec(name=name, pose=_pose(pose), segments=front + rear)
+
+
+def fiducial_finder(
+    pose: Sequence[float] = (0.0, 0.0, 0.0),
+    *,
+    range_max: float = 8.0,
+    range_max_id: float = 5.0,
+    fov_deg: float = 180.0,
+    key: int = 0,
+    name: str = "fiducial",
+) -> FiducialSpec:
+    """A fiducial finder with Stage's defaults (8 m, ids within 5 m, 180 degrees)."""
+    return FiducialSpec(
+        name=name,
+        pose=_pose(pose),
+        range_max=float(range_max),
+        range_max_id=float(range_max_id),
+        fov=math.radians(fov_deg),
+        key=int(key),
+    )
+
+
 def pioneer2dx(name: str, pose: Sequence[float] = (0.0, 0.0, 0.0), *, color: Color = "red") -> ModelSpec:
     """A Pioneer 2DX base: 0.44 x 0.38 x 0.22 m, 23 kg, 1.0 m/s and 100 deg/s, 8 sonars."""
     return ModelSpec(
@@ -251,13 +294,15 @@ ROBOT_PRESETS: dict[str, Callable[..., ModelSpec]] = {
 }
 """Robot bases by name: ``f(name, pose, *, color)``."""
 
-DEVICE_PRESETS: dict[str, Callable[..., RangerSpec | BlobfinderSpec | GripperSpec]] = {
+DEVICE_PRESETS: dict[str, Callable[..., RangerSpec | BlobfinderSpec | GripperSpec | BumperSpec | FiducialSpec]] = {
     "urg04lx": urg04lx,
     "utm30lx": utm30lx,
     "pioneer2dx_sonar": pioneer2dx_sonar,
     "pioneer3at_sonar": pioneer3at_sonar,
     "blobfinder": blobfinder,
     "gripper": gripper,
+    "pioneer_bumper": pioneer_bumper,
+    "fiducial_finder": fiducial_finder,
 }
 """Devices by name; every one takes a ``pose=`` keyword (the mount pose on the robot)."""
 

@@ -6,8 +6,9 @@ is built from it and never sees file syntax. Everything is in SI units: metres a
 as ``(x, y, yaw)`` (Stage writes ``[x y z a]`` with degrees; the parsers convert).
 
 The model kinds follow Stage (thesis appendix A.1, A.5, A.6): a *position* model is a robot base
-with a differential drive; *ranger*, *blobfinder* and *gripper* models are devices mounted on it;
-any other *model* is a passive body (a blob, a box of furniture) that robots can push, see or grip.
+with a differential drive; *ranger*, *blobfinder*, *gripper*, *bumper* and *fiducial* models are
+devices mounted on it; any other *model* is a passive body (a blob, a box of furniture) that robots
+can push, see or grip. The simulator's plug-in for each device kind is in :mod:`simulator.sensors`.
 """
 
 from __future__ import annotations
@@ -18,6 +19,9 @@ from pathlib import Path
 
 __all__ = [
     "BlobfinderSpec",
+    "BumperSegmentSpec",
+    "BumperSpec",
+    "FiducialSpec",
     "FloorplanSpec",
     "GripperSpec",
     "ModelSpec",
@@ -87,6 +91,44 @@ class GripperSpec:
 
 
 @dataclass
+class BumperSegmentSpec:
+    """One bumper switch: a straight segment of ``length`` metres centred at ``pose`` (device
+    frame), lying across the direction ``pose`` faces (Stage ``bpose[i]``/``blength[i]``)."""
+
+    pose: Pose = (0.0, 0.0, 0.0)
+    length: float = 0.1  # m
+
+
+@dataclass
+class BumperSpec:
+    """A ring of binary touch sensors (Stage ``bumper``, Player's bumper interface): a segment
+    reads 1 while an obstacle (a wall, or a body with ``obstacle_return``) touches it."""
+
+    name: str = "bumper"
+    pose: Pose = (0.0, 0.0, 0.0)  # mount pose on the robot; segments are relative to it
+    segments: list[BumperSegmentSpec] = field(default_factory=list)
+    interval: float = 0.1
+
+
+@dataclass
+class FiducialSpec:
+    """A fiducial finder (Stage ``fiducial``, Player's fiducial interface): reports the models
+    with a non-zero ``fiducial_return`` and the same ``fiducial_key`` in range, in its field of
+    view and in line of sight; their id only within ``range_max_id`` (0 beyond, as Stage)."""
+
+    name: str = "fiducial"
+    pose: Pose = (0.0, 0.0, 0.0)
+    range_min: float = 0.0  # m; nearer fiducials are reported at this range (Stage)
+    range_max: float = 8.0  # m; Stage's default
+    range_max_id: float = 5.0  # m; the id is read only nearer than this
+    fov: float = math.pi  # rad
+    key: int = 0  # sees only models whose fiducial_key equals this (Stage's finder fiducial_key)
+    range_noise: float = 0.0  # standard deviation of the range, m (Stage has none)
+    bearing_noise: float = 0.0  # standard deviation of the bearing, rad
+    interval: float = 0.1
+
+
+@dataclass
 class ModelSpec:
     """A body in the world: a robot when ``position`` is true, otherwise a passive object."""
 
@@ -102,6 +144,8 @@ class ModelSpec:
     laser_return: bool = True  # Stage 3 name; Stage 4's ranger_return maps here too
     blob_return: bool = True
     gripper_return: bool = False
+    fiducial_return: int = 0  # id fiducial finders read; 0: not seen by them (Stage)
+    fiducial_key: int = 0  # only finders with the same key see this model (Stage)
     # Position model (robots only).
     drive: str = "diff"
     max_speed: tuple[float, float] = (1.0, math.radians(90.0))  # |v| m/s, |w| rad/s
@@ -113,6 +157,8 @@ class ModelSpec:
     rangers: list[RangerSpec] = field(default_factory=list)
     blobfinders: list[BlobfinderSpec] = field(default_factory=list)
     grippers: list[GripperSpec] = field(default_factory=list)
+    bumpers: list[BumperSpec] = field(default_factory=list)
+    fiducials: list[FiducialSpec] = field(default_factory=list)
     source: str = ""  # "file:line" where it was declared, for messages
 
 

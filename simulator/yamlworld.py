@@ -19,11 +19,15 @@ are degrees as in Stage files::
           - {type: sonar, model: pioneer2dx_sonar}              # or sensors: [{pose, fov, range}]
           - {type: blobfinder, colors: [green], fov: 90, range: 3, image: [80, 60]}
           - {type: gripper}
+          - {type: bumper, model: pioneer}      # or segments: [{pose: [x, y, yaw], length: 0.1}]
+          - {type: fiducial, range: [0, 8], range_id: 5, fov: 180, key: 0}
+        fiducial_return: 1          # id fiducial finders read (0: not seen); fiducial_key: 0
     objects:
       - {name: blob0, type: blob, pose: [1.0, 2.0, 0], color: green}   # blob | box
 
 Robots may also override ``size``, ``mass``, ``max_speed [m/s, deg/s]``, ``max_accel``,
-``odom_error``, ``odom_noise`` and the ``*_return`` flags; objects ``size``, ``mass`` and the flags.
+``odom_error``, ``odom_noise``, the ``*_return`` flags and ``fiducial_return``/``fiducial_key``;
+objects ``size``, ``mass``, the flags, ``fiducial_return`` and ``fiducial_key``.
 The bitmap path is relative to the YAML file. Unknown keys are skipped with a warning (with a
 "did you mean"); wrong types, missing required keys (robot and object ``name``, object ``type``,
 floorplan ``bitmap``) and duplicate model names raise :class:`~simulator.errors.WorldFileError`
@@ -43,9 +47,12 @@ from typing import Any
 import yaml
 
 from .errors import WorldFileError, as_world_file_errors
-from .presets import DEVICE_PRESETS, OBJECT_PRESETS, ROBOT_PRESETS
+from .presets import DEVICE_PRESETS, OBJECT_PRESETS, ROBOT_PRESETS, pioneer_bumper
 from .spec import (
     BlobfinderSpec,
+    BumperSegmentSpec,
+    BumperSpec,
+    FiducialSpec,
     FloorplanSpec,
     GripperSpec,
     ModelSpec,
@@ -65,23 +72,28 @@ _TOP_KEYS = ("world", "floorplan", "robots", "objects")
 _WORLD_KEYS = ("interval_sim", "speedup", "seed", "name")
 _FLOORPLAN_KEYS = ("bitmap", "resolution", "origin", "size", "pose", "threshold", "name")
 _FLAG_KEYS = ("obstacle_return", "laser_return", "blob_return", "gripper_return")
+_FIDUCIAL_KEYS = ("fiducial_return", "fiducial_key")
 _ROBOT_KEYS = (
     "name", "type", "pose", "color", "sonar", "devices", "size", "mass", "max_speed", "max_accel",
-    "odom_error", "odom_noise", "drive", *_FLAG_KEYS,
+    "odom_error", "odom_noise", "drive", *_FLAG_KEYS, *_FIDUCIAL_KEYS,
 )  # fmt: skip
-_OBJECT_KEYS = ("name", "type", "pose", "color", "size", "mass", *_FLAG_KEYS)
+_OBJECT_KEYS = ("name", "type", "pose", "color", "size", "mass", *_FLAG_KEYS, *_FIDUCIAL_KEYS)
 _DEVICE_KEYS: dict[str, tuple[str, ...]] = {
     "laser": ("type", "name", "model", "pose", "fov", "samples", "range", "noise", "interval"),
     "sonar": ("type", "name", "model", "pose", "sensors", "interval"),
     "blobfinder": ("type", "name", "pose", "colors", "fov", "range", "image", "interval"),
     "gripper": ("type", "name", "pose", "size", "paddle_time", "lift_time", "interval"),
+    "bumper": ("type", "name", "model", "pose", "segments", "interval"),
+    "fiducial": ("type", "name", "pose", "range", "range_id", "fov", "key", "noise", "interval"),
 }
+_SEGMENT_KEYS = ("pose", "length")
 _SENSOR_KEYS = ("pose", "fov", "samples", "range", "noise")
 _DEVICE_MODELS = {
     "laser": ("urg04lx", "utm30lx"),
     "sonar": ("pioneer2dx_sonar", "pioneer3at_sonar"),
 }
 _DEFAULT_RESOLUTION = 0.05
+_Device = RangerSpec | BlobfinderSpec | GripperSpec | BumperSpec | FiducialSpec
 
 
 # ---------------------------------------------------------------------------------- YAML with lines
@@ -409,6 +421,8 @@ class _YamlWorld:
         spec.mass = self.num(m, "mass", where, spec.mass, lo=0.0, unit=" (kg)")
         for key in _FLAG_KEYS:
             setattr(spec, key, self.flag(m, key, where, getattr(spec, key)))
+        for key in _FIDUCIAL_KEYS:
+            setattr(spec, key, self.integer(m, key, where, getattr(spec, key)))
 
     def robot(self, m: _Map, where: str) -> ModelSpec:
         name = self.text(m, "name", where, "r0", required=True)
@@ -443,11 +457,15 @@ class _YamlWorld:
         for i, item in enumerate(devices):
             dwhere = f"{where}.devices[{i}]"
             d = self.mapping(item, devices.line_at(i), dwhere, "{type: laser, model: urg04lx}")
-            dev = self.device(d, dwhere)
+            dev = self.device(d, dwhere, spec.size)
             if isinstance(dev, RangerSpec):
                 spec.rangers.append(dev)
             elif isinstance(dev, BlobfinderSpec):
                 spec.blobfinders.append(dev)
+            elif isinstance(dev, BumperSpec):
+                spec.bumpers.append(dev)
+            elif isinstance(dev, FiducialSpec):
+                spec.fiducials.append(dev)
             else:
                 spec.grippers.append(dev)
         return spec
@@ -463,12 +481,16 @@ class _YamlWorld:
         return spec
 
     # ------------------------------------------------------------------ devices
-    def device(self, m: _Map, where: str) -> RangerSpec | BlobfinderSpec | GripperSpec:
+    def device(self, m: _Map, where: str, size: Sequence[float] = (0.44, 0.38, 0.22)) -> _Device:
         kind = self.choice(m, "type", where, list(_DEVICE_KEYS))
         self.check_keys(m, _DEVICE_KEYS[kind], f"{where} ({kind})")
         pose = self.pose(m, "pose", where)
-        dev: RangerSpec | BlobfinderSpec | GripperSpec
-        if kind in _DEVICE_MODELS:
+        dev: _Device
+        if kind == "bumper":
+            dev = self.bumper(m, where, pose, size)
+        elif kind == "fiducial":
+            dev = self.fiducial(m, where, pose)
+        elif kind in _DEVICE_MODELS:
             dev = self.ranger(m, where, kind, pose)
         elif kind == "blobfinder":
             b = BlobfinderSpec(pose=pose)
@@ -508,6 +530,43 @@ class _YamlWorld:
         dev.name = self.text(m, "name", where, dev.name)
         dev.interval = self.num(m, "interval", where, dev.interval, positive=True, unit=" (s)")
         return dev
+
+    def bumper(self, m: _Map, where: str, pose: Pose, size: Sequence[float]) -> BumperSpec:
+        if "model" in m:
+            self.choice(m, "model", where, ("pioneer",))
+            return pioneer_bumper(pose, (float(size[0]), float(size[1])))
+        example = "segments: [{pose: [0.24, 0, 0], length: 0.1}]"
+        if "segments" not in m:
+            raise self.error(m.line, f"{where}: a bumper needs 'model: pioneer' or '{example}'")
+        b = BumperSpec(pose=pose)
+        items = self.sequence(m, "segments", where, example)
+        for i, item in enumerate(items):
+            swhere = f"{where}.segments[{i}]"
+            s_map = self.mapping(item, items.line_at(i), swhere, "{pose: [0.24, 0, 0], length: 0.1}")
+            self.check_keys(s_map, _SEGMENT_KEYS, swhere)
+            b.segments.append(
+                BumperSegmentSpec(
+                    pose=self.pose(s_map, "pose", swhere),
+                    length=self.num(s_map, "length", swhere, 0.1, positive=True, unit=" (m)"),
+                )
+            )
+        if not b.segments:
+            raise self.error(m.line_of("segments"), f"{where}.segments is empty; list at least one segment")
+        return b
+
+    def fiducial(self, m: _Map, where: str, pose: Pose) -> FiducialSpec:
+        f = FiducialSpec(pose=pose)
+        f.range_min, f.range_max = self.range_(m, where, (f.range_min, f.range_max))
+        f.range_max_id = self.num(m, "range_id", where, f.range_max_id, lo=0.0, unit=" (m)")
+        f.fov = math.radians(self.fov(m, where, math.degrees(f.fov)))
+        f.key = self.integer(m, "key", where, f.key)
+        if "noise" in m:
+            example = "noise: [0.02, 1.0]   # range m, bearing degrees (standard deviations)"
+            v = self.numbers(m, "noise", where, (2,), example)
+            if min(v) < 0:
+                raise self.error(m.line_of("noise"), f"{where}.noise must not be negative; e.g. {example}")
+            f.range_noise, f.bearing_noise = v[0], math.radians(v[1])
+        return f
 
     def fov(self, m: _Map, where: str, default_deg: float) -> float:
         v = self.num(m, "fov", where, default_deg, positive=True, unit=" (degrees)")
