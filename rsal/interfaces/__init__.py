@@ -35,7 +35,7 @@ from . import (
     ranger,
     simulation,
 )
-from .base import Device, Interface
+from .base import Device, Interface, decode_as
 
 __all__ = [
     "Interface",
@@ -48,6 +48,7 @@ __all__ = [
     "messages",
     "decode_data",
     "cmd_types",
+    "decode_as",
 ]
 
 _MODULES = (

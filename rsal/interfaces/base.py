@@ -25,7 +25,7 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
 from .. import keys, msgs
@@ -35,7 +35,7 @@ from ..msgs import MessageError, decode_map
 if TYPE_CHECKING:
     from ..client import Fabric
 
-__all__ = ["Interface", "Device"]
+__all__ = ["Interface", "Device", "decode_as"]
 
 log = logging.getLogger(__name__)
 _monotonic = time.monotonic
@@ -240,14 +240,26 @@ class Interface:
     def decode_cmd(self, m: dict, accepted: tuple[type, ...] | None = None) -> Any:
         """A ``cmd`` map to the first of ``accepted`` (default: this interface's ``cmds``) that it
         fits; the map itself when there is no command type to try."""
-        kinds = self.cmds if accepted is None else accepted
-        if not kinds:
+        return decode_as(self.cmds if accepted is None else accepted, m)
+
+
+def decode_as(kinds: tuple[type, ...], m: dict) -> Any:
+    """``m`` as the first of the message classes ``kinds`` it fits, tried in order. When it fits
+    none, the error raised is that of the first class with a field the map has (``{"goal": [1, 2]}``
+    is a bad GoalCmd, not a VelocityCmd without ``v``). ``m`` itself if ``kinds`` is empty."""
+    if not kinds:
+        return m
+    if not isinstance(m, dict):  # already a message
+        if isinstance(m, kinds):
             return m
-        first: MessageError | None = None
-        for cls in kinds:
-            try:
-                return cls.from_dict(m)
-            except MessageError as e:
-                first = first or e
-        assert first is not None
-        raise first
+        raise MessageError(f"a {type(m).__name__} is not one of {' | '.join(k.__name__ for k in kinds)}")
+    errors: list[tuple[type, MessageError]] = []
+    for cls in kinds:
+        try:
+            return cls.from_dict(m)
+        except MessageError as e:
+            errors.append((cls, e))
+    for cls, e in errors:
+        if isinstance(m, dict) and any(f.name in m for f in fields(cls)):
+            raise e
+    raise errors[0][1]
