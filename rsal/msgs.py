@@ -56,9 +56,6 @@ __all__ = [
     "LocalizeData",
     "PlannerData",
     "PLANNER_STATUS",
-    "BumperData",
-    "FiducialItem",
-    "FiducialData",
     "Describe",
     "f32_bytes",
     "f32_array",
@@ -323,41 +320,13 @@ class _Msg:
 
 # ---------------------------------------------------------------------------- interface messages
 # The messages of each interface live with it in ``rsal/interfaces/<name>.py``. They stay importable
-# from here (``from rsal.msgs import Position2dData``), resolved on first use: the interface modules
-# import this codec, so importing them here eagerly would be circular.
-_MOVED = {
-    "VelocityCmd": "position2d",
-    "Position2dData": "position2d",
-    "GoalCmd": "position2d",
-    "RangerData": "ranger",
-    "BlobData": "blobfinder",
-    "BlobfinderData": "blobfinder",
-    "GRIPPER_ACTIONS": "gripper",
-    "GripperCmd": "gripper",
-    "GripperData": "gripper",
-    "PowerData": "power",
-    "DioData": "dio",
-    "DioCmd": "dio",
-    "ACTUATOR_STATES": "actarray",
-    "ActArrayData": "actarray",
-    "SimulationData": "simulation",
-    "MapData": "map",
-    "Hypothesis": "localize",
-    "LocalizeData": "localize",
-    "PLANNER_STATUS": "planner",
-    "PlannerData": "planner",
-    "BumperData": "bumper",
-    "FiducialItem": "fiducial",
-    "FiducialData": "fiducial",
-}
-
-
+# from here (``from rsal.msgs import Position2dData``), resolved on first use from the registry's
+# modules: the interface modules import this codec, so importing them here eagerly would be circular.
+# ``__all__`` above keeps the names this module had; any interface's message resolves the same way.
 if TYPE_CHECKING:  # what the names resolve to, for type checkers and linters
     from .interfaces.actarray import ACTUATOR_STATES, ActArrayData
     from .interfaces.blobfinder import BlobData, BlobfinderData
-    from .interfaces.bumper import BumperData
     from .interfaces.dio import DioCmd, DioData
-    from .interfaces.fiducial import FiducialData, FiducialItem
     from .interfaces.gripper import GripperCmd, GripperData
     from .interfaces.localize import Hypothesis, LocalizeData
     from .interfaces.map import MapData
@@ -369,14 +338,14 @@ if TYPE_CHECKING:  # what the names resolve to, for type checkers and linters
 
 
 def __getattr__(name: str):
-    mod = _MOVED.get(name)
-    if mod is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
+    from . import interfaces
 
-    value = getattr(importlib.import_module(f"rsal.interfaces.{mod}"), name)
-    globals()[name] = value  # later look-ups are plain attribute reads
-    return value
+    for mod in interfaces.MODULES:
+        if name in getattr(mod, "__all__", ()):
+            value = getattr(mod, name)
+            globals()[name] = value  # later look-ups are plain attribute reads
+            return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # ---------------------------------------------------------------------------- describe

@@ -12,7 +12,7 @@ This registry collects the records; everything else derives from it:
   (:func:`decode_data`, :func:`cmd_types`);
 - the live view's decoding and one-line summaries (``rsal watch``).
 
-Adding an interface = one module here plus its line in :data:`_MODULES`; the recipe with the
+Adding an interface = one module here plus its line in :data:`MODULES`; the recipe with the
 exact files is ``docs/contributing.md``.
 """
 
@@ -41,6 +41,7 @@ __all__ = [
     "Interface",
     "Device",
     "REGISTRY",
+    "MODULES",
     "names",
     "get",
     "proxy_class",
@@ -51,7 +52,8 @@ __all__ = [
     "decode_as",
 ]
 
-_MODULES = (
+#: the interface modules, in key-space order: a new interface adds its module here (and its import above)
+MODULES = (
     position2d,
     ranger,
     localize,
@@ -73,7 +75,7 @@ _AUDIO = Interface("audio", doc="sound playback and recording (plain maps)")
 
 def _collect() -> dict[str, Interface]:
     out: dict[str, Interface] = {}
-    for mod in _MODULES:
+    for mod in MODULES:
         records = getattr(mod, "INTERFACES", None) or (mod.INTERFACE,)
         for rec in records:
             if rec.name in out:
@@ -89,7 +91,7 @@ REGISTRY: dict[str, Interface] = _collect()
 
 def _messages() -> dict[str, type]:
     out: dict[str, type] = {}
-    for mod in _MODULES:
+    for mod in MODULES:
         for name in getattr(mod, "__all__", ()):
             obj = getattr(mod, name)
             if isinstance(obj, type) and hasattr(obj, "from_dict") and hasattr(obj, "to_msgpack"):

@@ -11,9 +11,8 @@ from bridge_helpers import LiveServer
 from conftest import wait_until
 
 from mrs_bridge.driver import Driver
-from rsal.devices import Bumper, Fiducial
-from rsal.interfaces.bumper import BumperData, BumperGeometry
-from rsal.interfaces.fiducial import FiducialData, FiducialGeometry, FiducialItem
+from rsal.interfaces.bumper import Bumper, BumperData, BumperGeometry
+from rsal.interfaces.fiducial import Fiducial, FiducialData, FiducialGeometry, FiducialItem
 from rsal.keys import parse_device
 from rsal.msgs import GoalCmd, VelocityCmd
 

@@ -43,6 +43,7 @@ def test_old_import_paths_still_work():
     from rsal.msgs import BlobfinderData, GripperCmd, PlannerData  # noqa: F401
 
     assert msgs.Position2dData is interfaces.get("position2d").data
+    assert msgs.BumperData is BumperData  # any interface's message resolves through rsal.msgs
     with pytest.raises(AttributeError):
         msgs.NoSuchMessage  # noqa: B018
 
