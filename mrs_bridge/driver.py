@@ -3,13 +3,17 @@
 A driver *provides* devices (addresses like ``r0:position2d:0``) and may *require* others, local
 or on another server. The server owns all Zenoh entities; a driver only implements:
 
-- ``setup()`` once its required devices are alive (inputs arrive through ``on_input``);
+- ``setup()`` once its required devices are alive (inputs arrive through ``on_input``: a required
+  device's ``data`` as its interface's message, ``Position2dData``, ``RangerData``, ...; events as maps);
   compiled kernels are prepared here (:mod:`mrs_bridge.kernels`), before anything is announced;
 - ``ready()`` whether it can serve yet: its devices' tokens are declared after ``setup()``, the
   first ``update()`` and once ``ready()`` is true (a map still to arrive by rpc: not yet);
 - ``update(now)`` at ``rate`` Hz on the server's single scheduler (publish with ``publish``);
-- ``on_cmd(addr, msg)`` for a decoded ``cmd`` map; raise :class:`~rsal.msgs.MessageError` (or
-  :class:`OutOfRange`) to reject it: the server logs a rate-limited warning and nothing changes;
+- ``on_cmd(addr, msg)`` for a decoded ``cmd``: the message class the driver declares in
+  ``cmd_types`` (``"GoalCmd | VelocityCmd"``), else the interface's (:mod:`rsal.interfaces`), else
+  the plain map; raise :class:`~rsal.msgs.MessageError` (or :class:`OutOfRange`) to reject it: the
+  server logs a rate-limited warning and nothing changes; ``X.from_dict(msg)`` returns an
+  already-typed ``msg`` as is, so drivers written against maps keep working;
 - ``on_rpc(addr, op, args)`` returning a result map; raise ``MessageError``/``OutOfRange``/
   :class:`~rsal.msgs.RpcError` for typed error replies, or return a :class:`Deferred` for a long
   operation that the server continues in slices and answers when done;
@@ -108,13 +112,13 @@ class Driver:
         their tokens after ``setup()``, the first ``update()`` and once this is true."""
         return True
 
-    def on_input(self, addr: DeviceAddr, channel: str, msg: dict) -> None:
-        """Data (``channel == "data"``) or events from a required device."""
+    def on_input(self, addr: DeviceAddr, channel: str, msg: Any) -> None:
+        """Data (``channel == "data"``, the interface's message) or events (maps) from a required device."""
 
     def on_reply(self, addr: DeviceAddr, op: str, result: dict | None, error: RpcError | None) -> None:
         """The answer to :meth:`request` (``error`` set and ``result`` None if it failed)."""
 
-    def on_cmd(self, addr: DeviceAddr, msg: dict) -> None:
+    def on_cmd(self, addr: DeviceAddr, msg: Any) -> None:
         raise MessageError(f"{addr} takes no commands")
 
     def on_rpc(self, addr: DeviceAddr, op: str, args: dict) -> dict:

@@ -19,6 +19,13 @@ devices' tokens are withdrawn (clients see them as lost) and the other drivers k
 Bad input (not msgpack, wrong fields or types, NaN/inf, out of range, unknown op) gets an error
 reply on ``rpc`` and a rate-limited warning on ``cmd``, and changes nothing.
 
+Typed hand-over: where the interface is known (:mod:`rsal.interfaces`), a ``cmd`` reaches the
+driver's ``on_cmd`` as its message (the types the driver declares in ``cmd_types``, else the
+interface's: ``VelocityCmd``, ``GoalCmd``, ``GripperCmd``, ``DioCmd``) and a required device's
+``data`` reaches ``on_input`` as the interface's data message (``Position2dData``,
+``RangerData``, ...), decoded and validated once, here. Events and interfaces without a message
+type arrive as plain maps.
+
 Required devices may live on other servers: a driver with ``requires`` waits for their tokens
 (liveliness subscriber with history) up to ``require_timeout`` seconds, then fails with a message
 that names the missing devices.
@@ -37,7 +44,7 @@ from typing import Any
 
 import zenoh
 
-from rsal import keys
+from rsal import interfaces, keys
 from rsal.client import query_rpc
 from rsal.errors import RsalError
 from rsal.keys import DeviceAddr
@@ -119,6 +126,7 @@ class _Device:
     event_pub: Any = None
     cmd_sub: Any = None
     rpc_q: Any = None
+    cmd_kinds: tuple | None = None  # message classes its cmd decodes to (None: not looked up yet)
 
     def undeclare(self) -> None:
         for name in ("cmd_sub", "rpc_q", "pub", "event_pub", "token"):
@@ -520,7 +528,7 @@ class DeviceServer:
             if slot.state != "running":
                 return
             try:
-                msg = decode_map(payload)
+                msg = interfaces.decode_data(addr.interface, payload) if channel == "data" else decode_map(payload)
             except MessageError as e:
                 self._warn(f"input:{addr}", f"malformed {channel} from {addr}: {e}")
                 return
@@ -554,7 +562,12 @@ class DeviceServer:
         if dev is None or dev.slot.state != "running":
             return
         try:
-            msg = decode_map(payload)
+            kinds = dev.cmd_kinds
+            if kinds is None:
+                drv = dev.slot.driver
+                kinds = dev.cmd_kinds = interfaces.cmd_types(addr.interface, drv.cmd_types.get(addr.interface, ""))
+            m = decode_map(payload)
+            msg = interfaces.decode_as(kinds, m)
             dev.slot.driver.on_cmd(addr, msg)
         except MessageError as e:
             self.stats["rejected"] += 1

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 __all__ = [
     "PREFIX",
@@ -40,23 +41,20 @@ __all__ = [
 PREFIX = "rsal"
 PROTOCOL_VERSION = 1
 
-# Player's interfaces that RSAL knows (thesis 3.6.2.3 and appendix A.2-A.4).
-INTERFACES = (
-    "position2d",
-    "ranger",
-    "laser",
-    "sonar",
-    "localize",
-    "planner",
-    "map",
-    "gripper",
-    "blobfinder",
-    "simulation",
-    "power",
-    "dio",
-    "actarray",
-    "audio",
-)
+# Player's interfaces that RSAL knows (thesis 3.6.2.3 and appendix A.2-A.4): ``INTERFACES`` is the
+# registry's list (rsal/interfaces), read on first use because the interface modules import this one.
+if TYPE_CHECKING:
+    INTERFACES: tuple[str, ...]
+
+
+def __getattr__(name: str):
+    if name == "INTERFACES":
+        from .interfaces import names
+
+        value = globals()["INTERFACES"] = names()
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 _NAME = re.compile(r"^[A-Za-z0-9_\-.]+$")  # no '/', '*', '$', '?', '#', ':' and no spaces
 

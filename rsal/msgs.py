@@ -1,23 +1,27 @@
-"""The message schema: every payload on the key space, defined once, validated on decode.
+"""The message schema: the codec every payload on the key space goes through, validated on decode.
 
 Payloads are msgpack maps with short string keys; numbers are SI (m, rad, s); arrays of ranges
-travel as packed little-endian float32 ``bytes``. Every type here is a frozen dataclass with
+travel as packed little-endian float32 ``bytes``. Every message is a frozen dataclass with
 ``to_dict()`` / ``from_dict()`` and :func:`encode` / :func:`decode` for bytes. Decoding checks
 types, finiteness and required fields and raises :class:`MessageError`, whose text names the
 field and what was expected, so a device server can answer or log one line and carry on.
 
+This module holds the codec, the field readers, the reply envelope (:class:`RpcError`,
+:class:`ErrorCode`) and :class:`Describe`. Each interface's messages live with it in
+:mod:`rsal.interfaces` (``rsal/interfaces/<name>.py``) and stay importable from here by name
+(``from rsal.msgs import Position2dData``).
+
 RPC replies: success is ``{"ok": true, ...result}``; failure is sent with Zenoh's ``reply_err``
 as ``{"ok": false, "code": <ErrorCode>, "message": str}``. ``docs/protocol.md`` documents every
-message; this module is the implementation of that document.
+message; this module and the interface modules are the implementation of that document.
 """
 
 from __future__ import annotations
 
 import math
-import struct
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from enum import StrEnum
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import msgpack
 import numpy as np
@@ -269,6 +273,24 @@ class _Msg:
     __slots__ = ()
     _field_names: ClassVar[tuple[str, ...]] = ()
 
+    def __init_subclass__(cls, **kw) -> None:
+        # ``from_dict`` also takes a message that is already of the class and returns it as is: the
+        # device server hands drivers typed commands and inputs, and a driver written against maps
+        # (``VelocityCmd.from_dict(msg)``) keeps working unchanged.
+        super().__init_subclass__(**kw)
+        raw = cls.__dict__.get("from_dict")
+        if raw is None or getattr(raw, "__func__", None) is None or getattr(raw.__func__, "_typed_ok", False):
+            return
+        plain = raw.__func__
+
+        def from_dict(c, m, _plain=plain):
+            return m if isinstance(m, c) else _plain(c, m)
+
+        from_dict._typed_ok = True  # type: ignore[attr-defined]
+        from_dict.__doc__ = plain.__doc__
+        from_dict.__qualname__ = plain.__qualname__
+        cls.from_dict = classmethod(from_dict)  # type: ignore[method-assign]
+
     def to_msgpack(self) -> bytes:
         """The message's payload bytes (what :func:`encode` returns for it)."""
         return _pack_map(self.to_dict())
@@ -298,464 +320,34 @@ class _Msg:
         return d
 
 
-# ---------------------------------------------------------------------------- position2d
-@dataclass(frozen=True)
-class VelocityCmd(_Msg):
-    """position2d ``cmd``: forward speed ``v`` (m/s), sideways ``vy`` (m/s, 0 for a diff drive),
-    turn rate ``w`` (rad/s). Player's ``SetSpeed``."""
-
-    v: float
-    w: float
-    vy: float = 0.0
-
-    @classmethod
-    def from_dict(cls, m: dict) -> VelocityCmd:
-        return cls(get_float(m, "v"), get_float(m, "w"), get_float(m, "vy", 0.0))
-
-
-@dataclass(slots=True)  # not frozen: a frozen init costs 4x on this hot path; treat as immutable
-class Position2dData(_Msg):
-    """position2d ``data``: pose (x, y, yaw) in the device's frame (odometry or map), velocity
-    (vx, vy, w) in the robot frame, stall flag; ``timed_out``: the base stopped itself because its
-    velocity command was not refreshed within its ``cmd_timeout``; ``estop``: its emergency stop is
-    latched."""
-
-    t: float
-    pose: tuple[float, float, float]
-    vel: tuple[float, float, float]
-    stall: bool = False
-    timed_out: bool = False
-    estop: bool = False
-
-    @classmethod
-    def from_dict(cls, m: dict) -> Position2dData:
-        return cls(
-            get_float(m, "t"),
-            get_vec(m, "pose", 3),
-            get_vec(m, "vel", 3),
-            get_bool(m, "stall", False),
-            get_bool(m, "timed_out", False),
-            get_bool(m, "estop", False),
-        )
-
-
-# ---------------------------------------------------------------------------- ranger / laser / sonar
-@dataclass(slots=True, eq=False)  # not frozen: a frozen init costs 4x on this hot path; treat as immutable
-class RangerData(_Msg):
-    """ranger, laser and sonar ``data``: ``ranges`` (float32 bytes on the wire, metres). For a
-    laser, beam ``i`` points at ``angle_min + i * angle_step`` (rad, in the ranger's frame, whose
-    pose on the robot is ``rpc/describe`` geometry ``pose``); a sonar's transducer poses are in
-    ``rpc/describe`` geometry ``sensors``."""
-
-    t: float
-    ranges: np.ndarray
-    angle_min: float = 0.0
-    angle_step: float = 0.0
-    range_min: float = 0.0
-    range_max: float = 0.0
-
-    @classmethod
-    def from_dict(cls, m: dict) -> RangerData:
-        try:
-            t, r, a0, da = m["t"], m["ranges"], m["angle_min"], m["angle_step"]
-            lo, hi = m["range_min"], m["range_max"]
-        except KeyError:
-            pass
-        else:
-            if (  # fast path: every field present and well-typed; x - x is NaN for inf and NaN
-                type(t) is type(a0) is type(da) is type(lo) is type(hi) is float
-                and (t - t) + (a0 - a0) + (da - da) + (lo - lo) + (hi - hi) == 0.0
-                and type(r) is bytes
-                and not len(r) & 3
-            ):
-                return cls(t, _frombuffer(r, _F32), a0, da, lo, hi)
-        return cls(
-            get_float(m, "t"),
-            f32_array(m, "ranges"),
-            get_float(m, "angle_min", 0.0),
-            get_float(m, "angle_step", 0.0),
-            get_float(m, "range_min", 0.0),
-            get_float(m, "range_max", 0.0),
-        )
-
-    def to_dict(self) -> dict:  # explicit: the hottest message on the fabric
-        r = self.ranges
-        return {
-            "t": self.t,
-            "ranges": r.tobytes() if r.dtype is _F32 else f32_bytes(r),
-            "angle_min": self.angle_min,
-            "angle_step": self.angle_step,
-            "range_min": self.range_min,
-            "range_max": self.range_max,
-        }
-
-    # The wire fast path. Every scan a server sends has the same layout: this map's six keys in
-    # field order, five float64 and one bin. Packing that layout with two precompiled structs and
-    # reading it back the same way (the ranges a view into the payload, no copy) takes about half
-    # the time of building and walking a generic map (docs/benchmarks.md). The bytes are exactly
-    # msgpack's (a test compares them); any other layout -- another key order, float32 or integer
-    # fields, extra keys, trailing bytes -- takes the generic path, with its checks and errors.
-    def to_msgpack(self) -> bytes:
-        t, r, a0, da, lo, hi = self.t, self.ranges, self.angle_min, self.angle_step, self.range_min, self.range_max
-        if (
-            type(t) is type(a0) is type(da) is type(lo) is type(hi) is float
-            and type(r) is np.ndarray
-            and r.dtype is _F32
-        ):
-            rb = r.tobytes()
-            n = len(rb)
-            if n < 0x10000:
-                head = _RD_HEAD16.pack(_RD_T, t, _RD_R16, n) if n > 0xFF else _RD_HEAD8.pack(_RD_T, t, _RD_R8, n)
-                return b"".join((head, rb, _RD_TAIL.pack(_RD_K0, a0, _RD_K1, da, _RD_K2, lo, _RD_K3, hi)))
-        return _pack_map(self.to_dict())
-
-    @classmethod
-    def from_bytes(cls, data: bytes | bytearray | memoryview | None) -> RangerData:
-        if type(data) is bytes and len(data) >= _RD_MIN:
-            head, t, key, n = _RD_HEAD16.unpack_from(data)
-            if head == _RD_T and key == _RD_R16 and len(data) == _RD_MIN + 1 + n and not n & 3:
-                k0, a0, k1, da, k2, lo, k3, hi = _RD_TAIL.unpack_from(data, 22 + n)
-                if (k0, k1, k2, k3) == _RD_KEYS and (t - t) + (a0 - a0) + (da - da) + (lo - lo) + (hi - hi) == 0.0:
-                    return cls(t, _frombuffer(data, _F32, n >> 2, 22), a0, da, lo, hi)
-        return cls.from_dict(decode_map(data))
-
-
-# RangerData's wire layout: fixmap(6) "t" float64, "ranges" bin8/bin16 <n bytes>, then the four
-# float64 fields. Only bin16 payloads (256 B to 64 kB of ranges: 64 to 16383 beams) are read by
-# the fast path; shorter and longer scans are still written by it where they fit, and read generically.
-_RD_T = 0x86A174CB  # fixmap(6), fixstr "t", float64 marker
-_RD_R8, _RD_R16 = b"\xa6ranges\xc4", b"\xa6ranges\xc5"
-_RD_HEAD8 = struct.Struct(">Id8sB")
-_RD_HEAD16 = struct.Struct(">Id8sH")
-_RD_K0, _RD_K1, _RD_K2, _RD_K3 = (
-    b"\xa9angle_min\xcb",
-    b"\xaaangle_step\xcb",
-    b"\xa9range_min\xcb",
-    b"\xa9range_max\xcb",
-)
-_RD_KEYS = (_RD_K0, _RD_K1, _RD_K2, _RD_K3)
-_RD_TAIL = struct.Struct(">11sd12sd11sd11sd")
-_RD_MIN = _RD_HEAD8.size + _RD_TAIL.size  # 98: the bin8 header is one byte shorter than bin16's
-
-
-# ---------------------------------------------------------------------------- blobfinder
-@dataclass(frozen=True)
-class BlobData(_Msg):
-    """One blob: colour 0xRRGGBB, image box and centre (pixels), area, range (m), bearing (rad)."""
-
-    id: int
-    color: int
-    x: int
-    y: int
-    left: int
-    right: int
-    top: int
-    bottom: int
-    area: int
-    range: float
-    bearing: float
-
-    @classmethod
-    def from_dict(cls, m: dict) -> BlobData:
-        if not isinstance(m, dict):
-            raise MessageError("each blob must be a map")
-        ints = {k: get_int(m, k, 0) for k in ("id", "x", "y", "left", "right", "top", "bottom", "area")}
-        return cls(
-            color=get_int(m, "color", lo=0, hi=0xFFFFFF),
-            range=get_float(m, "range"),
-            bearing=get_float(m, "bearing", 0.0),
-            **ints,
-        )
-
-
-@dataclass(frozen=True)
-class BlobfinderData(_Msg):
-    t: float
-    width: int
-    height: int
-    blobs: list[BlobData] = field(default_factory=list)
-
-    @classmethod
-    def from_dict(cls, m: dict) -> BlobfinderData:
-        raw = _need(m, "blobs", True)
-        if not isinstance(raw, list):
-            raise MessageError("field 'blobs' must be a list")
-        return cls(
-            get_float(m, "t"),
-            get_int(m, "width", lo=0),
-            get_int(m, "height", lo=0),
-            [BlobData.from_dict(b) for b in raw],
-        )
-
-    def to_dict(self) -> dict:
-        return {"t": self.t, "width": self.width, "height": self.height, "blobs": [asdict(b) for b in self.blobs]}
-
-
-# ---------------------------------------------------------------------------- gripper
-GRIPPER_ACTIONS = ("open", "close", "stop", "up", "down")
-
-
-@dataclass(frozen=True)
-class GripperCmd(_Msg):
-    """gripper ``cmd``: one of open, close, stop (paddles), up, down (lift)."""
-
-    action: str
-
-    @classmethod
-    def from_dict(cls, m: dict) -> GripperCmd:
-        return cls(get_str(m, "action", choices=GRIPPER_ACTIONS))
-
-
-@dataclass(frozen=True)
-class GripperData(_Msg):
-    """gripper ``data``: paddles open/closed/opening/closing, lift down/up/raising/lowering,
-    beams bit 0 inner and bit 1 outer, ``stored`` objects held (0 or 1) and what is carried."""
-
-    t: float
-    paddles: str
-    lift: str
-    beams: int
-    stored: int
-    carrying: str | None = None
-
-    @classmethod
-    def from_dict(cls, m: dict) -> GripperData:
-        return cls(
-            get_float(m, "t"),
-            get_str(m, "paddles", choices=("open", "closed", "opening", "closing", "error")),
-            get_str(m, "lift", "down", choices=("down", "up", "raising", "lowering", "error")),
-            get_int(m, "beams", 0, lo=0, hi=3),
-            get_int(m, "stored", 0, lo=0),
-            get_str(m, "carrying", optional=True),
-        )
-
-
-# ---------------------------------------------------------------------------- power
-@dataclass(frozen=True)
-class PowerData(_Msg):
-    t: float
-    volts: float
-    percent: float
-    charging: bool = False
-
-    @classmethod
-    def from_dict(cls, m: dict) -> PowerData:
-        return cls(
-            get_float(m, "t"),
-            get_float(m, "volts"),
-            get_float(m, "percent", lo=0, hi=100),
-            get_bool(m, "charging", False),
-        )
-
-
-# ---------------------------------------------------------------------------- dio / actarray
-@dataclass(frozen=True)
-class DioData(_Msg):
-    """dio ``data``: ``count`` digital inputs as the bit field ``bits`` (input i is bit i) and the
-    current digital outputs ``outputs``. Player's ``player_dio_data``."""
-
-    t: float
-    count: int
-    bits: int
-    outputs: int = 0
-
-    @classmethod
-    def from_dict(cls, m: dict) -> DioData:
-        count = get_int(m, "count", lo=0, hi=32)
-        hi = (1 << count) - 1
-        return cls(get_float(m, "t"), count, get_int(m, "bits", lo=0, hi=hi), get_int(m, "outputs", 0, lo=0, hi=0xFFFF))
-
-
-@dataclass(frozen=True)
-class DioCmd(_Msg):
-    """dio ``cmd``: set the digital outputs selected by ``mask`` to the matching bits of ``bits``."""
-
-    bits: int
-    mask: int = 0xFF
-
-    @classmethod
-    def from_dict(cls, m: dict) -> DioCmd:
-        return cls(get_int(m, "bits", lo=0, hi=0xFF), get_int(m, "mask", 0xFF, lo=0, hi=0xFF))
-
-
-ACTUATOR_STATES = ("idle", "moving", "braked", "stalled")
-
-
-@dataclass(frozen=True)
-class ActArrayData(_Msg):
-    """actarray ``data``: per actuator its position (m for a linear joint, rad for a rotary one),
-    speed and state (idle, moving, braked, stalled). Player's ``player_actarray_data``."""
-
-    t: float
-    positions: tuple[float, ...]
-    speeds: tuple[float, ...]
-    states: tuple[str, ...]
-
-    @classmethod
-    def from_dict(cls, m: dict) -> ActArrayData:
-        pos, spd, st = (_need(m, k, True) for k in ("positions", "speeds", "states"))
-        if not all(isinstance(v, (list, tuple)) for v in (pos, spd, st)) or not len(pos) == len(spd) == len(st):
-            raise MessageError("fields 'positions', 'speeds' and 'states' must be lists of the same length")
-        n = len(pos)
-        return cls(
-            get_float(m, "t"),
-            get_vec(m, "positions", n),
-            get_vec(m, "speeds", n),
-            tuple(get_str({"state": s}, "state", choices=ACTUATOR_STATES) for s in st),
-        )
-
-
-# ---------------------------------------------------------------------------- simulation
-@dataclass(frozen=True)
-class SimulationData(_Msg):
-    """simulation ``data``: simulated time, steps, paused flag, achieved real-time factor."""
-
-    t: float
-    steps: int
-    paused: bool
-    rtf: float = 0.0
-
-    @classmethod
-    def from_dict(cls, m: dict) -> SimulationData:
-        return cls(get_float(m, "t"), get_int(m, "steps", lo=0), get_bool(m, "paused"), get_float(m, "rtf", 0.0))
-
-
-# ---------------------------------------------------------------------------- map
-@dataclass(frozen=True, eq=False)
-class MapData(_Msg):
-    """map ``rpc/get`` reply: ``cells`` int8 row-major from the *bottom* row, Player's values
-    (-1 free, 0 unknown, +1 occupied), ``origin`` the world position of the bottom-left corner."""
-
-    width: int
-    height: int
-    resolution: float
-    origin: tuple[float, float]
-    cells: np.ndarray  # int8, shape (height, width)
-
-    def to_dict(self) -> dict:
-        return {
-            "width": self.width,
-            "height": self.height,
-            "resolution": self.resolution,
-            "origin": list(self.origin),
-            "cells": np.ascontiguousarray(self.cells, dtype=np.int8).tobytes(),
-        }
-
-    @classmethod
-    def from_dict(cls, m: dict) -> MapData:
-        w = get_int(m, "width", lo=1)
-        h = get_int(m, "height", lo=1)
-        raw = _need(m, "cells", True)
-        if not isinstance(raw, (bytes, bytearray)) or len(raw) != w * h:
-            raise MessageError(f"field 'cells' must be {w * h} bytes (width x height int8)")
-        return cls(
-            w,
-            h,
-            get_float(m, "resolution", lo=1e-6),
-            get_vec(m, "origin", 2),
-            np.frombuffer(raw, dtype=np.int8).reshape(h, w),
-        )
-
-
-# ---------------------------------------------------------------------------- navigation
-@dataclass(frozen=True)
-class GoalCmd(_Msg):
-    """position2d ``cmd`` of a local planner (vfh, nd, snd): drive to ``goal`` (x, y, yaw) in the
-    device's frame. Player's ``GoTo``; a :class:`VelocityCmd` on the same key cancels the goal."""
-
-    goal: tuple[float, float, float]
-
-    @classmethod
-    def from_dict(cls, m: dict) -> GoalCmd:
-        return cls(get_vec(m, "goal", 3))
-
-
-def _cov9(m: dict, name: str) -> tuple[float, ...]:
-    c = get_vec(m, name, 9)
-    if c[0] < 0 or c[4] < 0 or c[8] < 0:
-        raise MessageError(f"field {name!r} must be a covariance (non-negative diagonal)")
-    return c
-
-
-@dataclass(frozen=True)
-class Hypothesis(_Msg):
-    """One pose hypothesis of a localizer: ``weight`` in [0, 1], ``pose`` mean (x, y, yaw) in the map
-    frame, ``cov`` its 3x3 covariance row-major (m², rad²)."""
-
-    weight: float
-    pose: tuple[float, float, float]
-    cov: tuple[float, ...]
-
-    @classmethod
-    def from_dict(cls, m: dict) -> Hypothesis:
-        if not isinstance(m, dict):
-            raise MessageError("each hypothesis must be a map")
-        return cls(get_float(m, "weight", lo=0.0, hi=1.0 + 1e-9), get_vec(m, "pose", 3), _cov9(m, "cov"))
-
-
-@dataclass(frozen=True)
-class LocalizeData(_Msg):
-    """localize ``data`` (Player's localize interface; thesis eq. 3.3-3.4): the best estimate ``pose``
-    with covariance ``cov`` (row-major 3x3), every ``hypotheses`` entry heaviest first, the number of
-    ``particles``, and ``pending`` sensor updates skipped (0 when keeping up)."""
-
-    t: float
-    pose: tuple[float, float, float]
-    cov: tuple[float, ...]
-    hypotheses: list[Hypothesis] = field(default_factory=list)
-    particles: int = 0
-    pending: int = 0
-
-    @classmethod
-    def from_dict(cls, m: dict) -> LocalizeData:
-        raw = _need(m, "hypotheses", False) or []
-        if not isinstance(raw, list):
-            raise MessageError("field 'hypotheses' must be a list")
-        return cls(
-            get_float(m, "t"),
-            get_vec(m, "pose", 3),
-            _cov9(m, "cov"),
-            [Hypothesis.from_dict(h) for h in raw],
-            get_int(m, "particles", 0, lo=0),
-            get_int(m, "pending", 0, lo=0),
-        )
-
-
-PLANNER_STATUS = ("idle", "driving", "done", "aborted", "invalid")
-
-
-@dataclass(frozen=True)
-class PlannerData(_Msg):
-    """planner ``data`` (Player's planner interface): ``status`` one of idle, driving, done, aborted
-    (a replan failed), invalid (the goal cannot be planned); ``pose`` the localized pose, ``goal`` and
-    ``waypoint`` (current target) in the map frame (empty list when none), ``waypoint_index`` of
-    ``waypoint_count``; ``message`` says why for aborted/invalid."""
-
-    t: float
-    status: str
-    pose: tuple[float, float, float]
-    goal: tuple[float, ...] = ()
-    waypoint: tuple[float, ...] = ()
-    waypoint_index: int = 0
-    waypoint_count: int = 0
-    message: str = ""
-
-    @classmethod
-    def from_dict(cls, m: dict) -> PlannerData:
-        def opt3(name: str) -> tuple[float, ...]:
-            v = _need(m, name, False)
-            return () if v is None or v == [] else get_vec(m, name, 3)
-
-        return cls(
-            get_float(m, "t"),
-            get_str(m, "status", choices=PLANNER_STATUS),
-            get_vec(m, "pose", 3),
-            opt3("goal"),
-            opt3("waypoint"),
-            get_int(m, "waypoint_index", 0, lo=0),
-            get_int(m, "waypoint_count", 0, lo=0),
-            get_str(m, "message", ""),
-        )
+# ---------------------------------------------------------------------------- interface messages
+# The messages of each interface live with it in ``rsal/interfaces/<name>.py``. They stay importable
+# from here (``from rsal.msgs import Position2dData``), resolved on first use from the registry's
+# modules: the interface modules import this codec, so importing them here eagerly would be circular.
+# ``__all__`` above keeps the names this module had; any interface's message resolves the same way.
+if TYPE_CHECKING:  # what the names resolve to, for type checkers and linters
+    from .interfaces.actarray import ACTUATOR_STATES, ActArrayData
+    from .interfaces.blobfinder import BlobData, BlobfinderData
+    from .interfaces.dio import DioCmd, DioData
+    from .interfaces.gripper import GripperCmd, GripperData
+    from .interfaces.localize import Hypothesis, LocalizeData
+    from .interfaces.map import MapData
+    from .interfaces.planner import PLANNER_STATUS, PlannerData
+    from .interfaces.position2d import GoalCmd, Position2dData, VelocityCmd
+    from .interfaces.power import PowerData
+    from .interfaces.ranger import RangerData
+    from .interfaces.simulation import SimulationData
+
+
+def __getattr__(name: str):
+    from . import interfaces
+
+    for mod in interfaces.MODULES:
+        if name in getattr(mod, "__all__", ()):
+            value = getattr(mod, name)
+            globals()[name] = value  # later look-ups are plain attribute reads
+            return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # ---------------------------------------------------------------------------- describe

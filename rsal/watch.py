@@ -43,22 +43,18 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from . import keys
+from . import interfaces, keys
 from .cliutil import stop_on_signals
 from .geometry import compose_array, invert_array
+from .interfaces.ranger import RangerGeometry
 from .keys import DeviceAddr
 from .msgs import (
     BlobfinderData,
-    GripperData,
-    LocalizeData,
     MapData,
     MessageError,
     PlannerData,
-    Position2dData,
-    PowerData,
     RangerData,
     RpcError,
-    SimulationData,
     decode_map,
 )
 from .transport import TransportArgs, add_transport_args, open_session
@@ -86,20 +82,10 @@ FLIP = (1.0, -1.0, 1.0)  # world y points up (north), a Rerun 2D view's y points
 # ---------------------------------------------------------------------------- pure conversions
 def beam_layout(geometry: dict, n: int, angle_min: float, angle_step: float) -> tuple[np.ndarray, np.ndarray]:
     """Where each of ``n`` beams starts and points, in the robot frame: ``(origins (n, 2),
-    angles (n,))``. A laser (``angle_step`` != 0) fans its beams from the one sensor
-    (``geometry['pose'] ⊕ sensors[0].pose``); a sonar ring (``angle_step`` == 0) has one transducer
-    per beam, ``geometry['pose'] ⊕ sensors[i].pose`` (docs/protocol.md, RangerData)."""
-    mount = np.asarray(geometry.get("pose") or (0.0, 0.0, 0.0), dtype=float)
-    sensors = [s.get("pose") or (0.0, 0.0, 0.0) for s in geometry.get("sensors") or [] if isinstance(s, dict)]
-    if angle_step != 0.0 or not sensors:
-        origin = compose_array(mount, np.asarray(sensors[0] if sensors else (0.0, 0.0, 0.0), dtype=float))
-        angles = origin[2] + angle_min + angle_step * np.arange(n)
-        return np.broadcast_to(origin[:2], (n, 2)).copy(), angles
-    poses = np.asarray(sensors, dtype=float)
-    if len(poses) < n:  # more readings than described transducers: repeat the last one
-        poses = np.vstack([poses, np.repeat(poses[-1:], n - len(poses), axis=0)])
-    t = compose_array(mount, poses[:n])
-    return t[:, :2].copy(), t[:, 2].copy()
+    angles (n,))``, from a ranger's describe geometry (:class:`~rsal.interfaces.ranger.RangerGeometry`
+    lays them out: a laser fans its beams from its sensor, a sonar ring has one transducer per beam)."""
+    origins, angles = RangerGeometry(geometry).layout(n, angle_min, angle_step)
+    return origins.copy(), angles.copy()
 
 
 def scan_to_world(
@@ -314,6 +300,7 @@ class Watcher:
         self._geometry: dict[DeviceAddr, dict] = {}
         self._describing: dict[DeviceAddr, float] = {}
         self._layout: dict[DeviceAddr, tuple] = {}
+        self._summaries: dict[DeviceAddr, str] = {}  # latest summary text logged per device
         self._last_scan: dict[DeviceAddr, float] = {}
         self._robots: dict[str, _Robot] = {}
         self._maps: dict[DeviceAddr, str] = {}
@@ -528,7 +515,7 @@ class Watcher:
                     self.stats.downsampled += 1
                     continue
             try:
-                self._on_sample(addr, decode_map(payload))
+                self._on_sample(addr, interfaces.decode_data(addr.interface, payload))
             except Exception as e:  # MessageError, or data that does not fit the device's geometry
                 self._bad(key, e)
         self._emit_robots()
@@ -640,11 +627,11 @@ class Watcher:
                 )
 
     # ------------------------------------------------------------------ samples
-    def _on_sample(self, addr: DeviceAddr, m: dict) -> None:
+    def _on_sample(self, addr: DeviceAddr, msg: Any) -> None:
+        """One decoded data message (the interface's type from :mod:`rsal.interfaces`)."""
         iface = addr.interface
         node = addr.node
         if iface == "position2d":
-            msg = Position2dData.from_dict(m)
             frame = self._geometry.get(addr, {}).get("frame")
             if frame is None:
                 frame = {0: "odom", 2: "map"}.get(addr.index)
@@ -665,18 +652,17 @@ class Watcher:
                 return
             rb.dirty = True
         elif iface == "localize":
-            msg = LocalizeData.from_dict(m)
             rb = self.robot(node)
             rb.loc, rb.cov = msg.pose, msg.cov
             rb.dirty = rb.cov_dirty = True
         elif iface in ("laser", "sonar", "ranger"):
-            self._on_scan(addr, RangerData.from_dict(m))
+            self._on_scan(addr, msg)
         elif iface == "planner":
-            self._on_planner(addr, PlannerData.from_dict(m))
+            self._on_planner(addr, msg)
         elif iface == "blobfinder":
-            self._on_blobs(addr, BlobfinderData.from_dict(m))
+            self._on_blobs(addr, msg)
         elif iface == "gripper":
-            g = GripperData.from_dict(m)
+            g = msg
             rb = self.robot(node)
             if g.carrying != rb.carrying:
                 rb.carrying = g.carrying
@@ -684,11 +670,25 @@ class Watcher:
                 if g.carrying is None:
                     self.log(entity("world", "robots", node, "carried"), self.rr.Clear(recursive=False))
         elif iface == "power":
-            p = PowerData.from_dict(m)
+            p = msg
             self.robot(node).battery = p.percent
             self.log(entity("plots", node, "battery"), self.rr.Scalars(p.percent))
         elif iface == "simulation":
-            self._sim_time = SimulationData.from_dict(m).t
+            self._sim_time = msg.t
+        else:
+            self._on_summary(addr, msg)
+
+    def _on_summary(self, addr: DeviceAddr, msg: Any) -> None:
+        """An interface the view does not draw (bumper, fiducial, dio, ...): its registry summary as
+        a text log under ``log/devices/<node>``, each time the text changes."""
+        rec = interfaces.get(addr.interface)
+        if rec is None:
+            return
+        text = rec.summary(msg)
+        if not text or self._summaries.get(addr) == text:
+            return
+        self._summaries[addr] = text
+        self.log(entity("log", "devices", addr.node), self.rr.TextLog(f"{addr}: {text}", level="INFO"))
 
     def _on_scan(self, addr: DeviceAddr, scan: RangerData) -> None:
         now = time.monotonic()

@@ -42,6 +42,7 @@ import time
 import numpy as np
 
 from rsal.geometry import compose, relative
+from rsal.interfaces.ranger import RangerGeometry
 from rsal.msgs import (
     ErrorCode,
     Hypothesis,
@@ -56,7 +57,6 @@ from rsal.msgs import (
 
 from ..config import ConfigError
 from ..driver import Driver, register
-from .navcommon import BeamGeometry
 
 __all__ = ["AmclDriver"]
 
@@ -118,7 +118,7 @@ class AmclDriver(Driver):
         except ValueError as e:
             raise ConfigError(f"{cfg.where}: {e}") from None
         self.filter = None
-        self.beams: BeamGeometry | None = None
+        self.beams: RangerGeometry | None = None
         self.map_info: tuple[int, int, float] | None = None
         self._odom: tuple[float, float, float] | None = None
         self._odom_vel = (0.0, 0.0, 0.0)
@@ -168,7 +168,7 @@ class AmclDriver(Driver):
                 "global localization" if self.start_global else f"init at {self.params.init_pose}",
             )
         elif op == "describe":
-            self.beams = BeamGeometry(result.get("geometry", {}) or {}, self.laser_pose)
+            self.beams = RangerGeometry(result.get("geometry", {}) or {}, self.laser_pose)
 
     # ------------------------------------------------------------------ inputs
     def on_input(self, addr, channel, msg) -> None:

@@ -32,12 +32,13 @@ from __future__ import annotations
 
 import math
 
+from rsal.interfaces import decode_as
+from rsal.interfaces.ranger import RangerGeometry
 from rsal.msgs import ErrorCode, GoalCmd, MessageError, Position2dData, RangerData, RpcError, VelocityCmd, get_vec
 
 from ..baseguard import ESTOP_OPS, BaseGuard
 from ..config import ConfigError
 from ..driver import Driver, OutOfRange, register
-from .navcommon import BeamGeometry
 
 __all__ = ["LocalPlannerDriver"]
 
@@ -118,7 +119,7 @@ class LocalPlannerDriver(Driver):
                 if goal is not None:
                     self.planner.set_goal(goal)
         else:
-            self.geometry_of[a] = BeamGeometry(g)
+            self.geometry_of[a] = RangerGeometry(g)
 
     # ------------------------------------------------------------------ inputs
     def on_input(self, addr, channel, msg) -> None:
@@ -200,10 +201,12 @@ class LocalPlannerDriver(Driver):
             self._last_status = status
 
     def on_cmd(self, addr, msg) -> None:
-        if "goal" in msg:
-            self._goto(GoalCmd.from_dict(msg).goal)
+        # The server hands over a GoalCmd or a VelocityCmd (cmd_types); a plain map is decoded here.
+        msg = decode_as((GoalCmd, VelocityCmd), msg)
+        if isinstance(msg, GoalCmd):
+            self._goto(msg.goal)
             return
-        self._velocity(VelocityCmd.from_dict(msg))
+        self._velocity(msg)
 
     def _velocity(self, v: VelocityCmd, *, rpc: bool = False) -> None:
         """A velocity passed through to the base: cancels the goal, held for ``cmd_timeout``."""

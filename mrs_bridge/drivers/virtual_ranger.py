@@ -39,12 +39,13 @@ import time
 
 import numpy as np
 
+from rsal.interfaces.ranger import RangerGeometry
 from rsal.keys import parse_device
 from rsal.msgs import ErrorCode, MessageError, Position2dData, RangerData, RpcError
 
 from ..config import ConfigError
 from ..driver import Driver, register
-from .navcommon import BeamGeometry, num_param
+from .navcommon import num_param
 
 __all__ = ["VirtualRanger", "merge_discs"]
 
@@ -63,7 +64,7 @@ def merge_discs(
     """The ranges of a scan with discs added: ``min(ranges, distance along each beam to a disc)``.
 
     ``origins`` ``(n, 2)`` and ``bearings`` ``(n,)`` place the beams in the robot frame (as
-    :meth:`BeamGeometry.beams` gives them), ``pose`` ``(x, y, yaw)`` places the robot in the world,
+    :meth:`RangerGeometry.beams` gives them), ``pose`` ``(x, y, yaw)`` places the robot in the world,
     ``centres`` ``(m, 2)`` are the discs' centres in the world and ``radius`` their radius (a
     number or ``(m,)``). A beam whose origin lies inside a disc reads ``range_min``. Discs out of
     reach of every beam are dropped first; the rest are done all at once (numpy broadcasting,
@@ -139,7 +140,7 @@ class VirtualRanger(Driver):
         self.fixed = fixed is not None
         self.names: list[str] = [n for n in self._names(cfg, "models", []) if n not in self.exclude]
         self.geometry_dict: dict | None = None
-        self.beams: BeamGeometry | None = None
+        self.beams: RangerGeometry | None = None
         self.pose: tuple[float, float, float] | None = None
         self.virtual: dict[str, tuple[tuple[float, float, float], float]] = {}  # name -> (pose, received at)
         self._outstanding = 0  # get_pose requests of the current poll round not answered yet
@@ -185,7 +186,7 @@ class VirtualRanger(Driver):
                 return
             g = result.get("geometry", {}) or {}
             self.geometry_dict = g
-            self.beams = BeamGeometry(g)
+            self.beams = RangerGeometry(g)
         elif op == "models":
             self._models_pending = False
             if error is not None:

@@ -23,9 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from rsal.geometry import compose, relative
+from rsal.interfaces.ranger import RangerGeometry
 from simulator.world import World
 
-from ..drivers.navcommon import BeamGeometry, Handover
+from ..drivers.navcommon import Handover
 from . import profile
 from .amcl import Amcl, AmclParams
 from .grid import NavGrid
@@ -94,7 +95,7 @@ class RobotStack:
         spec = world.model_spec(name)
         self.laser = next(i for i, r in enumerate(world.rangers(name)) if r.kind == "laser")
         r = world.rangers(name)[self.laser]
-        self.beams = BeamGeometry(
+        self.beams = RangerGeometry(
             {
                 "pose": list(r.pose),
                 "sensors": [{"pose": list(s.pose), "fov": s.fov, "samples": s.samples} for s in r.sensors],
@@ -253,7 +254,7 @@ class Movers:
         self.beams = {}
         for n in names:
             r = world.rangers(n)[self.laser[n]]
-            self.beams[n] = BeamGeometry(
+            self.beams[n] = RangerGeometry(
                 {
                     "pose": list(r.pose),
                     "sensors": [{"pose": list(s.pose), "fov": s.fov, "samples": s.samples} for s in r.sensors],
