@@ -34,9 +34,11 @@ import numpy as np
 import pymunk
 import pymunk.batch
 
+from .controllers import StageControllers
 from .errors import ModelError, OutOfWorld, SimulatorError
 from .gridmap import GridMap
 from .raycast import CircleIndex, cast_fans, segment_min
+from .shapes import make_shapes
 from .spec import BlobfinderSpec, GripperSpec, ModelSpec, RangerSpec, WorldSpec
 
 __all__ = ["World", "RangerReading", "Blob", "GripperState", "SONAR_SUBRAYS"]
@@ -123,7 +125,7 @@ class _Model:
     spec: ModelSpec
     uid: int  # owner id in the ray caster
     body: pymunk.Body
-    shape: pymunk.Shape
+    shapes: list[pymunk.Shape]
     radius: float  # bounding circle the rangers see
     row: int = -1  # index into the robot state arrays (robots only)
     rangers: list[RangerSpec] = field(default_factory=list)
@@ -132,6 +134,11 @@ class _Model:
     grippers: list[_Gripper] = field(default_factory=list)
     carried_by: str | None = None  # name of the robot whose gripper holds this object
     in_space: bool = True
+
+    @property
+    def shape(self) -> pymunk.Shape:
+        """The first collision polygon (a plain box model has only this one)."""
+        return self.shapes[0]
 
 
 class World:
@@ -146,7 +153,7 @@ class World:
         self.grid: GridMap | None = None
         if spec.floorplan is not None:
             fp = spec.floorplan
-            self.grid = GridMap.from_image(fp.bitmap, fp.resolution, fp.origin, size=fp.size, threshold=fp.threshold)
+            self.grid = GridMap.from_floorplan(fp, spec.resolution)
         self.bounds = self._bounds()
         self._build()
 
@@ -208,6 +215,7 @@ class World:
         self._body_uid = np.zeros(0, dtype=np.int64)  # owner id in the ray caster
         for m in self.spec.models:
             self._add(m)
+        self.controllers = StageControllers(self.spec.models, self.seed)
 
     def _add_walls(self) -> None:
         if self.grid is None:
@@ -238,16 +246,16 @@ class World:
         sx, sy = float(spec.size[0]), float(spec.size[1])
         if not (sx > 0 and sy > 0):
             raise ModelError(f"model {spec.name!r}: size {spec.size!r} must be positive")
-        mass = max(float(spec.mass), 1e-3)
-        body = pymunk.Body(mass, pymunk.moment_for_box(mass, (sx, sy)))
+        body = pymunk.Body(max(float(spec.mass), 1e-3), 1.0)
         x, y, a = spec.pose
         body.position = (float(x), float(y))
         body.angle = float(a)
-        shape = pymunk.Poly.create_box(body, (sx, sy))
-        shape.friction = 0.6
-        shape.sensor = not spec.obstacle_return
-        self.space.add(body, shape)
-        model = _Model(spec=spec, uid=self._next_uid, body=body, shape=shape, radius=0.5 * max(sx, sy))
+        shapes, body.moment, radius = make_shapes(body, spec)  # Stage blocks scaled to size, at origin
+        for shape in shapes:
+            shape.friction = 0.6
+            shape.sensor = not spec.obstacle_return
+        self.space.add(body, *shapes)
+        model = _Model(spec=spec, uid=self._next_uid, body=body, shapes=shapes, radius=radius)
         self._next_uid += 1
         self._models[spec.name] = model
         if spec.position:
@@ -342,7 +350,7 @@ class World:
         if m.carried_by is not None:
             self._release(m)
         if m.in_space:
-            self.space.remove(m.shape, m.body)
+            self.space.remove(*m.shapes, m.body)
         del self._models[name]
         if m.row >= 0:
             r = m.row
@@ -458,6 +466,8 @@ class World:
         """Advance ``n`` fixed steps of ``interval_sim`` seconds (even while paused)."""
         for _ in range(int(n)):
             self._step_once()
+            if self.controllers:  # Stage ``ctrl`` controllers act on this step's readings
+                self.controllers(self)
 
     def _step_once(self) -> None:
         dt = self.spec.interval_sim
@@ -869,7 +879,7 @@ class World:
         g.carrying = o.spec.name
         o.carried_by = m.spec.name
         if o.in_space:
-            self.space.remove(o.shape, o.body)
+            self.space.remove(*o.shapes, o.body)
             o.in_space = False
             self._bodies_dirty = True
 
@@ -883,7 +893,7 @@ class World:
         if not o.in_space:
             o.body.velocity = (0.0, 0.0)
             o.body.angular_velocity = 0.0
-            self.space.add(o.body, o.shape)
+            self.space.add(o.body, *o.shapes)
             o.in_space = True
             self._bodies_dirty = True
 

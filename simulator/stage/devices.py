@@ -23,6 +23,7 @@ from .keywords import (
     LASER_KEYS,
     MODEL_KEYS,
     NOT_SIMULATED,
+    NOT_SIMULATED_KEYS,
     RANGER_KEYS,
     SENSOR_KEYS,
     SKIPPED,
@@ -88,6 +89,7 @@ class DeviceMapping(Reporter):
         sensors: list[RangerSensorSpec] = []
         if c.base == "laser":
             self.check_keys(P, LASER_KEYS, what)
+            self.scope_not_simulated(P, NOT_SIMULATED_KEYS["laser"])
             rmin = num(P["range_min"], "metres", "range_min 0.02") if "range_min" in P else 0.0
             rmax = num(P["range_max"], "metres", "range_max 5.6") if "range_max" in P else 8.0
             if rmax <= 0 or not 0 <= rmin <= rmax:
@@ -102,6 +104,7 @@ class DeviceMapping(Reporter):
             sensors.append(RangerSensorSpec((0.0, 0.0, 0.0), rmin, rmax, fov, samples, noise))
         else:
             self.check_keys(P, RANGER_KEYS, what)
+            self.scope_not_simulated(P, NOT_SIMULATED_KEYS["ranger"])
             for s in c.children:
                 if s.base == "sensor":
                     sensors.append(self._sensor(s, what))
@@ -144,6 +147,7 @@ class DeviceMapping(Reporter):
     def _sensor(self, s: Inst, what: str) -> RangerSensorSpec:
         P = s.props
         self.check_keys(P, SENSOR_KEYS, f"sensor of {what}")
+        self.scope_not_simulated(P, NOT_SIMULATED_KEYS["sensor"])
         pose = parse_pose(P["pose"]) if "pose" in P else (0.0, 0.0, 0.0)
         rmin, rmax = self._range(P["range"]) if "range" in P else (0.0, 5.0)
         fov = self._fov(P.get("fov"), math.degrees(0.1))
@@ -195,6 +199,7 @@ class DeviceMapping(Reporter):
         what = f"blobfinder '{c.type_name}' of '{robot.name}'"
         P = c.props
         self.check_keys(P, BLOBFINDER_KEYS, what)
+        self.scope_not_simulated(P, NOT_SIMULATED_KEYS["blobfinder"])
         b = BlobfinderSpec(name=name, pose=self._mount(c, offset), interval=self._interval(c, 0.1))
         cp = c.latest("colors", "channels")
         names: list[str] = []
@@ -243,6 +248,7 @@ class DeviceMapping(Reporter):
         name = self._device_name(c, counters)
         P = c.props
         self.check_keys(P, GRIPPER_KEYS, f"gripper '{c.type_name}' of '{robot.name}'")
+        self.scope_not_simulated(P, NOT_SIMULATED_KEYS["gripper"])
         g = GripperSpec(name=name, interval=self._interval(c, 0.1))
         g.pose = self._mount(c, offset) if "pose" in P else compose(offset, g.pose)
         if (p := P.get("size")) is not None:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import WorldFileError
-from .keywords import BUILTIN_TYPES, SKIPPED
+from .keywords import BUILTIN_TYPES
 from .syntax import MAX_NESTING, Body, Define, Include, Parser, Prop, Stmt, Tok, read_text, tokenize
 from .values import where
 
@@ -178,7 +178,7 @@ class Expander:
         self._count += 1
         if self._count > MAX_MODELS:
             raise WorldFileError(f"more than {MAX_MODELS} models after expanding defines", type_tok.file, type_tok.line)
-        if builtin in SKIPPED:
+        if builtin == "window":  # the GUI window: nothing to simulate
             return Inst(name, builtin, type_tok, {}, [])
         if depth > MAX_NESTING:
             raise WorldFileError(f"models nested more than {MAX_NESTING} deep", type_tok.file, type_tok.line)

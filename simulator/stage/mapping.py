@@ -21,10 +21,20 @@ import difflib
 import math
 from pathlib import Path
 
+from ..controllers import CONTROLLERS
 from ..errors import WorldFileError
 from ..spec import FloorplanSpec, ModelSpec, WorldSpec, parse_color
 from .devices import DeviceMapping
-from .keywords import DEVICE_TYPES, MODEL_KEYS, NOT_SIMULATED, POSITION_KEYS, SKIPPED, WORLD_KEYS
+from .keywords import (
+    BLOCK_KEYS,
+    DEVICE_TYPES,
+    MODEL_KEYS,
+    NOT_SIMULATED,
+    NOT_SIMULATED_KEYS,
+    POSITION_KEYS,
+    SKIPPED,
+    WORLD_KEYS,
+)  # fmt: skip
 from .macros import Inst
 from .syntax import Prop, Tok
 from .values import (
@@ -97,6 +107,7 @@ class Mapper(DeviceMapping):
             spec.models.append(model)
         if seed is not None:
             spec.seed = int(seed)
+        self.report_not_simulated(self.display)
         spec.warnings = list(self.warnings)
         return spec
 
@@ -109,11 +120,10 @@ class Mapper(DeviceMapping):
         return name
 
     def _not_simulated(self, inst: Inst) -> None:
-        self.warn(
-            inst.tok,
-            f"'{inst.type_name}' ({inst.base}) is not simulated; skipped",
-            key=("nosim", inst.tok.file, inst.tok.line),
-        )
+        what = f"model type '{inst.base}'"
+        if inst.type_name != inst.base:
+            what += f" ('{inst.type_name}')"
+        self.not_simulated(inst.tok, what)
 
     def _world(self, spec: WorldSpec) -> None:
         wp = self.world_props
@@ -135,13 +145,18 @@ class Mapper(DeviceMapping):
             spec.speedup = math.inf if v <= 0 else v
         if (p := wp.get("seed")) is not None:
             spec.seed = integer(p, "an integer", "seed 42")
-        for key, need, example in (
-            ("resolution", "a positive number of metres", "resolution 0.02"),
-            ("quit_time", "seconds >= 0", "quit_time 3600"),
-            ("show_clock_interval", "a number of updates", "show_clock_interval 100"),
-        ):
-            if (p := wp.get(key)) is not None:
-                check(num(p, need, example) >= 0, p, need, example)
+        if (p := wp.get("resolution")) is not None:
+            v = num(p, "a positive number of metres", "resolution 0.02")
+            check(v > 0, p, "a positive number of metres", "resolution 0.02")
+            spec.resolution = v
+        if (p := wp.get("quit_time")) is not None:  # Stage: stop when sim time >= quit_time > 0
+            v = num(p, "seconds >= 0 (0: never)", "quit_time 3600")
+            check(v >= 0, p, "seconds >= 0 (0: never)", "quit_time 3600")
+            spec.quit_time = v
+        if (p := wp.get("show_clock_interval")) is not None:
+            need, example = "a number of updates", "show_clock_interval 100"
+            check(num(p, need, example) >= 0, p, need, example)
+        self.scope_not_simulated(wp, NOT_SIMULATED_KEYS["world"])
         if (p := wp.get("threads")) is not None:
             integer(p, "an integer", "threads 1")
         for key in ("paused", "show_clock"):
@@ -180,10 +195,42 @@ class Mapper(DeviceMapping):
         for key in ("obstacle_return", "blob_return", "gripper_return"):
             if (p := P.get(key)) is not None:
                 setattr(m, key, boolean(p))
+        if (p := P.get("origin")) is not None and "bitmap" not in P:
+            m.origin = parse_pose(p)
+        m.blocks = self._blocks(inst)
         m.source = where(inst.tok)
+
+    def _blocks(self, inst: Inst) -> list[tuple[tuple[float, float], ...]]:
+        """The outlines of the model's ``block( points N point[i] [x y] ... )`` children."""
+        out = []
+        for b in inst.children:
+            if b.base != "block":
+                continue
+            P = b.props
+            self.check_keys(P, BLOCK_KEYS, f"block of '{inst.type_name}'")
+            pp = P.get("points")
+            if pp is None:
+                raise WorldFileError(
+                    "block without 'points': write e.g. 'block( points 4 point[0] [0 0] point[1] [1 0] "
+                    "point[2] [1 1] point[3] [0 1] z [0 1] )'",
+                    b.tok.file,
+                    b.tok.line,
+                )
+            n = integer(pp, "a number of corners >= 3", "points 4")
+            check(3 <= n <= 10_000, pp, "a number of corners >= 3", "points 4")
+            pts = []
+            for i in range(n):
+                q = P.get(f"point[{i}]")  # Stage reads a missing corner as [0 0]
+                x, y = nums(q, (2,), "[x y]", f"point[{i}] [ 0 1 ]") if q is not None else (0.0, 0.0)
+                pts.append((x, y))
+            if (q := P.get("z")) is not None:
+                nums(q, (2,), "[bottom top] heights", "z [ 0 1 ]")
+            out.append(tuple(pts))
+        return out
 
     def _passive(self, inst: Inst, name: str) -> ModelSpec:
         self.check_keys(inst.props, MODEL_KEYS, f"model '{name}'")
+        self.scope_not_simulated(inst.props, NOT_SIMULATED_KEYS["model"])
         m = ModelSpec(name=name, type_name=inst.type_name, position=False)
         self._common(inst, m)
         for c in inst.children:
@@ -199,8 +246,25 @@ class Mapper(DeviceMapping):
     def _robot(self, inst: Inst, name: str) -> ModelSpec:
         P = inst.props
         self.check_keys(P, POSITION_KEYS, f"position '{name}'")
+        self.scope_not_simulated(P, NOT_SIMULATED_KEYS["position"])
         m = ModelSpec(name=name, type_name=inst.type_name, position=True)
         self._common(inst, m)
+        if (p := P.get("localization")) is not None:
+            loc = string(p, '"odom" or "gps"', 'localization "odom"')
+            check(loc in ("odom", "gps"), p, '"odom" or "gps"', 'localization "odom"')
+            m.localization = loc
+        if (p := P.get("ctrl")) is not None:
+            words = string(p, 'a controller name and its arguments ("wander")', 'ctrl "wander"').split()
+            if words and words[0] in CONTROLLERS:
+                m.ctrl = words[0]
+            else:
+                got = words[0] if words else ""
+                self.warn(
+                    p.at,
+                    f"controller '{got}' of '{name}' is not built in (known: {', '.join(sorted(CONTROLLERS))}); "
+                    "the robot gets no controller",
+                    key=("ctrl", p.tok.file, p.tok.line),
+                )
         if (p := P.get("drive")) is not None:
             drive = string(p, 'a drive name ("diff")', 'drive "diff"')
             if drive != "diff":
@@ -234,7 +298,9 @@ class Mapper(DeviceMapping):
     def _floorplan(self, inst: Inst, name: str) -> FloorplanSpec:
         P = inst.props
         self.check_keys(P, MODEL_KEYS, f"floorplan '{name}'")
+        self.scope_not_simulated(P, NOT_SIMULATED_KEYS["floorplan"])
         self._common(inst, ModelSpec(name=name))  # validates pose, size, colour, flags
+        boundary = boolean(P["boundary"]) if "boundary" in P else False
         bp = P["bitmap"]
         rel = string(bp, "a quoted image file name", 'bitmap "floor.png"').strip()
         check(bool(rel), bp, "a quoted image file name", 'bitmap "floor.png"')
@@ -256,12 +322,16 @@ class Mapper(DeviceMapping):
             self.warn(P["pose"].at, f"floorplan '{name}': rotation ignored, a bitmap is always axis-aligned")
         if (p := P.get("size")) is not None:
             sx, sy, _ = parse_size(p, 0.0)
+            ox = oy = 0.0
+            if (q := P.get("origin")) is not None:  # Stage: the bitmap's centre offset from the pose
+                ox, oy, _ = parse_pose(q)
             return FloorplanSpec(
                 bitmap=path.absolute(),
                 resolution=sx / w,
-                origin=(px - sx / 2.0, py - sy / 2.0),
+                origin=(px + ox - sx / 2.0, py + oy - sy / 2.0),
                 size=(sx, sy),
                 name=name,
+                boundary=boundary,
             )
         res = DEFAULT_MAP_RESOLUTION
         if (p := P.get("map_resolution")) is not None:
@@ -272,7 +342,9 @@ class Mapper(DeviceMapping):
             origin = (v[0], v[1])
         else:
             origin = (px - w * res / 2.0, py - h * res / 2.0)
-        return FloorplanSpec(bitmap=path.absolute(), resolution=res, origin=origin, size=None, name=name)
+        return FloorplanSpec(
+            bitmap=path.absolute(), resolution=res, origin=origin, size=None, name=name, boundary=boundary
+        )
 
 
 def image_size(path: Path, rel: str, tok: Tok) -> tuple[int, int]:

@@ -131,6 +131,41 @@ class Reporter:
     def __init__(self) -> None:
         self.warnings: list[str] = []
         self._warned: set[object] = set()
+        self._unsimulated: dict[tuple[str, str, int], tuple[str, str]] = {}  # (what, file, line) -> entry, needs
+        self._present: set[str] = set()  # "fiducial" (a fiducial finder), "power" (a power pack)
+
+    def not_simulated(self, tok: Tok, what: str) -> None:
+        """Note that ``what`` (e.g. ``"'watts'"`` or ``"model type 'camera'"``) written at ``tok``
+        is not simulated; :meth:`report_not_simulated` lists every such note in one warning."""
+        if what == "model type 'fiducial'":
+            self._present.add("fiducial")
+        needs = ""
+        if what.startswith("'"):
+            key = what.strip("'")
+            needs = _NEEDS.get(key, "")
+            if key in ("joules", "kjoules", "joules_capacity"):
+                self._present.add("power")
+        self._unsimulated.setdefault((what, tok.file, tok.line), (f"{what} at {where(tok)}", needs))
+
+    def report_not_simulated(self, display: str) -> None:
+        """The one warning naming everything a load recognised but does not simulate."""
+        entries = [e for e, needs in self._unsimulated.values() if not needs or needs in self._present]
+        if entries:
+            self.warn_text(f"{display}: not simulated (ignored): " + ", ".join(entries))
+
+    def scope_not_simulated(self, props: dict[str, Prop], known: frozenset[str]) -> None:
+        """Note every property of ``props`` whose keyword is in ``known`` (not simulated), unless
+        its value is all zeros or ``localization "odom"``: Stage's "off", which is what we do."""
+        for key, p in props.items():
+            if base_key(key) in known and not _is_off(p):
+                self.not_simulated(p.tok, f"'{key}'")
+
+    def warn_text(self, text: str) -> None:
+        if text in self._warned:
+            return
+        self._warned.add(text)
+        self.warnings.append(text)
+        log.warning("%s", text)
 
     def warn(self, tok: Tok, message: str, key: object = None) -> None:
         text = f"{where(tok)}: {message}"
@@ -149,3 +184,15 @@ class Reporter:
             close = difflib.get_close_matches(base, sorted(known), n=1, cutoff=0.6)
             hint = f"; did you mean '{close[0]}'?" if close else ""
             self.warn(p.tok, f"unknown keyword '{key}' in {what} ignored{hint}", key=("key", p.tok.file, key))
+
+
+# Keywords that only act through another model (Stage): fiducial_return/fiducial_key are seen by
+# fiducial finders, watts draw from a power pack (a model with joules). Without one they do nothing.
+_NEEDS = {"fiducial_return": "fiducial", "fiducial_key": "fiducial", "watts": "power", "give_watts": "power",
+          "take_watts": "power"}  # fmt: skip
+
+
+def _is_off(p: Prop) -> bool:
+    if p.key == "localization":
+        return len(p.values) == 1 and p.values[0].text == "odom"
+    return bool(p.values) and all(tok_float(t) == 0.0 for t in p.values)
