@@ -273,6 +273,8 @@ class SimDriver(Driver):
     def on_step(self, w) -> None:
         if self.model not in w.model_names:  # removed at run time
             return
+        if self.guard.estop or not self.motors:  # also over the world's own ctrl controllers (Stage wander)
+            w.halt(self.model)
         t = w.time
         v, om = w.velocity(self.model)
         for a in self.cfg.provides:
