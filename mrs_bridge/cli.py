@@ -214,6 +214,8 @@ def _sim(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     rc = run_server(cfg, args, shared={"simulator.world": world})
     wall = time.monotonic() - t0
+    if 0 < spec.quit_time <= world.time + 1e-9:
+        print(f"[sim] quit_time {spec.quit_time:g} s reached at t={world.time:.1f} s: stopped", flush=True)
     print(
         f"[sim] summary: robots={len(world.robot_names)} sim_seconds={world.time:.1f} wall_seconds={wall:.1f} "
         f"realtime_factor={world.time / wall if wall > 0 else 0:.2f}",

@@ -87,6 +87,29 @@ class GridMap:
                 occ = occ[idx, :]
         return cls(occ, resolution, origin)
 
+    @classmethod
+    def from_floorplan(cls, fp, cell: float = 0.0) -> GridMap:
+        """The grid of a :class:`~simulator.spec.FloorplanSpec` as Stage rasterises it: a bitmap
+        finer than ``cell`` metres (the world's ``resolution``) is coarsened to whole multiples of
+        its pixels near ``cell`` (a coarse cell is occupied when any of its pixels is); with
+        ``fp.boundary`` the outermost cells are walls (Stage's ``boundary 1``)."""
+        g = cls.from_image(fp.bitmap, fp.resolution, fp.origin, size=fp.size, threshold=fp.threshold)
+        k = int(cell / g.resolution + 1e-9) if cell > 0 else 1
+        occ = g.occupied
+        if k >= 2:
+            h, w = occ.shape
+            hk, wk = -(-h // k), -(-w // k)
+            pad = np.zeros((hk * k, wk * k), dtype=bool)
+            pad[:h, :w] = occ
+            occ = pad.reshape(hk, k, wk, k).any(axis=(1, 3))
+        if fp.boundary:
+            occ = occ.copy()
+            occ[0, :] = occ[-1, :] = True
+            occ[:, 0] = occ[:, -1] = True
+        if occ is g.occupied:
+            return g
+        return cls(occ, g.resolution * k if k >= 2 else g.resolution, g.origin)
+
     # ------------------------------------------------------------------ geometry
     @property
     def extent(self) -> tuple[float, float, float, float]:

@@ -159,6 +159,13 @@ class ModelSpec:
     grippers: list[GripperSpec] = field(default_factory=list)
     bumpers: list[BumperSpec] = field(default_factory=list)
     fiducials: list[FiducialSpec] = field(default_factory=list)
+    # Shape (Stage ``block`` and ``origin``): outlines in any unit, scaled together so that their
+    # bounding box is ``size`` and centred on ``origin`` (x, y, yaw in the body frame); no blocks:
+    # one ``size`` box. The body's pose is the model's pose; only the shape is offset.
+    blocks: list[tuple[tuple[float, float], ...]] = field(default_factory=list)
+    origin: Pose = (0.0, 0.0, 0.0)
+    localization: str = "odom"  # what position2d reports: "odom" (odometry) or "gps" (ground truth)
+    ctrl: str | None = None  # built-in controller (Stage ``ctrl``), e.g. "wander"; robots only
     source: str = ""  # "file:line" where it was declared, for messages
 
 
@@ -177,6 +184,7 @@ class FloorplanSpec:
     size: tuple[float, float] | None = None  # m; when given, the bitmap is scaled to it
     name: str = "floorplan"
     threshold: float = 0.5  # a pixel darker than this fraction of full brightness is occupied
+    boundary: bool = False  # Stage ``boundary 1``: walls along the map's outer edge
 
 
 @dataclass
@@ -188,6 +196,8 @@ class WorldSpec:
     interval_sim: float = 0.1  # s per simulation step (Stage ``interval_sim``, in ms in files)
     speedup: float = 1.0  # real-time factor when paced; <= 0 or inf means as fast as possible
     seed: int = 0
+    quit_time: float = 0.0  # s of simulated time after which a run stops (Stage ``quit_time``); 0: never
+    resolution: float = 0.02  # m, the static map's collision and raytrace grid (Stage ``resolution``)
     source: str = ""  # path of the file this came from
     warnings: list[str] = field(default_factory=list)  # "file:line: ..." messages from parsing
 

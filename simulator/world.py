@@ -37,10 +37,12 @@ import numpy as np
 import pymunk
 import pymunk.batch
 
+from .controllers import StageControllers
 from .drive import Drives
 from .errors import ModelError, OutOfWorld, SimulatorError
 from .gridmap import GridMap
 from .raycast import CircleIndex
+from .shapes import make_shapes
 from .sensors import SENSOR_TYPES, Sensor
 from .sensors.base import Model, wrap
 from .sensors.blobfinder import Blob
@@ -76,7 +78,7 @@ class World:
         self.grid: GridMap | None = None
         if spec.floorplan is not None:
             fp = spec.floorplan
-            self.grid = GridMap.from_image(fp.bitmap, fp.resolution, fp.origin, size=fp.size, threshold=fp.threshold)
+            self.grid = GridMap.from_floorplan(fp, spec.resolution)
         self.bounds = self._bounds()
         self._build()
 
@@ -127,6 +129,7 @@ class World:
         self._body_uid = np.zeros(0, dtype=np.int64)  # owner id in the ray caster
         for m in self.spec.models:
             self._add(m)
+        self.controllers = StageControllers(self.spec.models, self.seed)
 
     def _add_walls(self) -> None:
         if self.grid is None:
@@ -157,16 +160,16 @@ class World:
         sx, sy = float(spec.size[0]), float(spec.size[1])
         if not (sx > 0 and sy > 0):
             raise ModelError(f"model {spec.name!r}: size {spec.size!r} must be positive")
-        mass = max(float(spec.mass), 1e-3)
-        body = pymunk.Body(mass, pymunk.moment_for_box(mass, (sx, sy)))
+        body = pymunk.Body(max(float(spec.mass), 1e-3), 1.0)
         x, y, a = spec.pose
         body.position = (float(x), float(y))
         body.angle = float(a)
-        shape = pymunk.Poly.create_box(body, (sx, sy))
-        shape.friction = 0.6
-        shape.sensor = not spec.obstacle_return
-        self.space.add(body, shape)
-        model = Model(spec=spec, uid=self._next_uid, body=body, shape=shape, radius=0.5 * max(sx, sy))
+        shapes, body.moment, radius = make_shapes(body, spec)  # Stage blocks scaled to size, at origin
+        for shape in shapes:
+            shape.friction = 0.6
+            shape.sensor = not spec.obstacle_return
+        self.space.add(body, *shapes)
+        model = Model(spec=spec, uid=self._next_uid, body=body, shapes=shapes, radius=radius)
         self._next_uid += 1
         self._models[spec.name] = model
         if spec.position:
@@ -273,7 +276,7 @@ class World:
         for sensor in self.sensors.values():
             sensor.remove(m)
         if m.in_space:
-            self.space.remove(m.shape, m.body)
+            self.space.remove(*m.shapes, m.body)
         del self._models[name]
         if m.row >= 0:
             self.drives.remove(m.row)
@@ -286,7 +289,7 @@ class World:
         """``o`` is carried by robot ``holder``: out of the physics until :meth:`release`."""
         o.carried_by = holder
         if o.in_space:
-            self.space.remove(o.shape, o.body)
+            self.space.remove(*o.shapes, o.body)
             o.in_space = False
             self._models_changed()
 
@@ -296,7 +299,7 @@ class World:
         if not o.in_space:
             o.body.velocity = (0.0, 0.0)
             o.body.angular_velocity = 0.0
-            self.space.add(o.body, o.shape)
+            self.space.add(o.body, *o.shapes)
             o.in_space = True
             self._models_changed()
 
@@ -410,6 +413,8 @@ class World:
         """Advance ``n`` fixed steps of ``interval_sim`` seconds (even while paused)."""
         for _ in range(int(n)):
             self._step_once()
+            if self.controllers:  # Stage ``ctrl`` controllers act on this step's readings
+                self.controllers(self)
 
     def _step_once(self) -> None:
         dt = self.spec.interval_sim

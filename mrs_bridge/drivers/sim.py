@@ -4,7 +4,8 @@
   (``worldfile``), steps it at ``speedup`` times real time and answers the simulation interface
   (``get_pose``, ``set_pose`` -- the thesis's ``setPositionOf`` for mixed-reality proxies --
   ``models``, ``pause``, ``step``, ``reset``, ``remove_model``). After every step it hands over to
-  the ``sim`` drivers, which publish what changed.
+  the ``sim`` drivers, which publish what changed. When the world's ``quit_time`` (Stage) is
+  reached it logs so and stops the server cleanly.
 - ``sim`` (alias ``stage``) binds one robot model (``model``) and provides its ``position2d``
   (odometry pose, or ground truth with ``localization = "gps"``), ``ranger:i`` (the model's i-th
   ranger), ``sonar`` and ``laser`` (its first sonar / laser ranger), ``blobfinder``, ``gripper``
@@ -15,6 +16,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from typing import Any
@@ -42,6 +44,8 @@ from rsal.msgs import (
 from ..baseguard import ESTOP_OPS, BaseGuard
 from ..config import ConfigError
 from ..driver import Deferred, Driver, OutOfRange, register
+
+log = logging.getLogger(__name__)
 
 __all__ = ["SimulationDriver", "SimDriver"]
 
@@ -86,6 +90,7 @@ class SimulationDriver(Driver):
         self._last_pub = -math.inf
         self._wall0 = time.monotonic()
         self._sim0 = world.time
+        self._quit = False
 
     def setup(self) -> None:
         # The sim drivers of this world cannot work without it: they fail when this driver fails.
@@ -99,6 +104,13 @@ class SimulationDriver(Driver):
     def update(self, now: float) -> None:
         w = self.world
         self._check_timeouts()
+        q = w.spec.quit_time
+        if q > 0 and w.time >= q - 1e-9:  # Stage: a run stops once sim time reaches quit_time > 0
+            if not self._quit:
+                self._quit = True
+                log.warning("simulation: quit_time %g s reached at t=%.1f s; stopping the server", q, w.time)
+                self.server.stop()
+            return
         if w.advance():
             for d in self.server.drivers_of(SimDriver):
                 self.server.call_driver(d, d.on_step, w)
@@ -215,7 +227,8 @@ class SimDriver(Driver):
             raise ConfigError(f"{cfg.where}: {e}") from None
         if not self.spec.position:
             raise ConfigError(f"{cfg.where}: model {self.model!r} is not a robot")
-        self.gps = str(cfg.param("localization", "odom")).lower() == "gps"
+        # The config's localization, else the world's (Stage's position ``localization`` keyword).
+        self.gps = str(cfg.param("localization", self.spec.localization)).lower() == "gps"
         rangers = world.rangers(self.model)
         self.sonar_idx = next((i for i, r in enumerate(rangers) if r.kind == "sonar"), None)
         self.laser_idx = next((i for i, r in enumerate(rangers) if r.kind != "sonar"), None)
@@ -261,6 +274,8 @@ class SimDriver(Driver):
     def on_step(self, w) -> None:
         if self.model not in w.model_names:  # removed at run time
             return
+        if self.guard.estop or not self.motors:  # also over the world's own ctrl controllers (Stage wander)
+            w.halt(self.model)
         t = w.time
         v, om = w.velocity(self.model)
         for a in self.cfg.provides:

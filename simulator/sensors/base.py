@@ -61,11 +61,16 @@ class Model:
     spec: ModelSpec
     uid: int  # owner id in the ray caster
     body: pymunk.Body
-    shape: pymunk.Shape
+    shapes: list[pymunk.Shape]  # collision polygons (Stage blocks; a plain box model has one)
     radius: float  # bounding circle the rangers see
     row: int = -1  # index into the world's robot state arrays (robots only)
     carried_by: str | None = None  # name of the robot whose gripper holds this object
     in_space: bool = True
+
+    @property
+    def shape(self) -> pymunk.Shape:
+        """The first collision polygon (a plain box model has only this one)."""
+        return self.shapes[0]
 
 
 class Sensor:

@@ -188,6 +188,25 @@ def test_estop_all_stops_every_robot_while_their_controllers_keep_commanding(pro
     assert estop_cli(port, names[0], "--release").returncode == 0
 
 
+def test_estop_overrides_the_worlds_own_wander_controller(procs, port, fabric_factory):
+    world = MAPS.parent / "tests" / "simulator" / "fixtures" / "stage" / "stage4" / "wander.world"
+    procs(rsal_cmd("sim", str(world), "--listen", f"tcp/127.0.0.1:{port}"))
+    fab = fabric_factory(port)
+    node = fab.node("w0:position2d:0", "sim:simulation:0")
+    node.wait_for("sim:simulation:0", timeout=30)
+    node.wait_for("w0:position2d:0", timeout=30)
+    names = ["w0", "w1"]
+    wait_until(lambda: all(moving(fab, names).values()), 10, "the wander controller to move the robots")
+    base = fab.device("w0:position2d:0")
+    assert base.rpc("estop")["estop"] is True
+    wait_until(lambda: not moving(fab, ["w0"])["w0"], 2, "w0 to stop (ground truth)")
+    for _ in range(3):  # the controller keeps commanding every scan; the latch wins each time
+        m = moving(fab, names)
+        assert not m["w0"] and m["w1"], m
+    assert base.rpc("release")["estop"] is False
+    wait_until(lambda: moving(fab, ["w0"])["w0"], 5, "w0 to wander again after the release")
+
+
 def test_estop_cli_errors_are_one_line(port):
     r = estop_cli(port, "--wait", "1", "nobody")
     assert r.returncode == 1 and "no base of nobody answered" in r.stderr and "Traceback" not in r.stderr

@@ -125,7 +125,7 @@ def test_scalar_forms_return_plain_floats():
 # ---------------------------------------------------------------------------- the simulator's copies
 def test_the_simulators_private_helpers_agree():
     """The simulator imports nothing of ours, so it keeps a wrap and a (yaw-unwrapped) compose."""
-    from simulator.stageworld import _compose
+    from simulator.stage.values import compose as _compose
     from simulator.world import _wrap
 
     a = np.concatenate([np.array(EDGES[:-4]), RNG.uniform(-100, 100, 500)])

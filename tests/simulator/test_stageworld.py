@@ -234,9 +234,16 @@ position
 """,
     )
     spec = load_stage_world(p)
-    assert spec.warnings == []
+    # No "unknown keyword" warning; what is known but not simulated is named in one warning.
+    nosim = ", ".join(
+        f"'{k}' at {p}:{line}"
+        for k, line in [("paused", 2), ("boundary", 6), ("stack_children", 7), ("paddle_size", 11),
+                        ("paddle_state", 11), ("lift_state", 11)]
+    )  # fmt: skip
+    assert spec.warnings == [f"{p}: not simulated (ignored): {nosim}"]
     r0 = spec.model("r0")
     assert [r.kind for r in r0.rangers] == ["laser"] and len(r0.blobfinders) == len(r0.grippers) == 1
+    assert r0.ctrl == "wander" and r0.localization == "gps"
 
 
 def test_unknown_keyword_warns_once_per_keyword_and_file(tmp_path, caplog):
@@ -278,9 +285,11 @@ def test_not_simulated_devices_warn(tmp_path):
     text = 'position\n(\n  name "r0"\n  camera ( )\n  fiducial ( )\n  actuator ( )\n)\n'
     p = write(tmp_path / "w.world", text)
     spec = load_stage_world(p)
-    assert len(spec.warnings) == 3
-    assert all("not simulated" in w for w in spec.warnings)
-    assert spec.warnings[0].startswith(f"{p}:4:")
+    # One warning names every model type that is not simulated, each with its line.
+    assert spec.warnings == [
+        f"{p}: not simulated (ignored): model type 'camera' at {p}:4, model type 'fiducial' at {p}:5, "
+        f"model type 'actuator' at {p}:6"
+    ]
     assert len(spec.robots()) == 1
 
 

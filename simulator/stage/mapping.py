@@ -1,0 +1,364 @@
+"""Mapping of expanded Stage models to the simulator's :class:`~simulator.spec.WorldSpec`.
+
+Stage 4 semantics (Stage manual; ``libstage/world.cc``, ``model.cc``, ``model_position.cc``, read for
+meaning, no code shared):
+
+* Top-level ``position`` models (or defines of it) are robots, with the devices of
+  :mod:`simulator.stage.devices`. The first non-position top-level model with a ``bitmap`` is
+  the floorplan: Stage stretches the bitmap to ``size`` and centres it on ``pose``, so resolution =
+  size_x / width in pixels and origin = pose - size / 2. Without ``size``, our extension keys
+  ``map_resolution`` (default 0.05 m/pixel) and ``origin [x y]`` place it like Player's mapfile
+  driver (default: centred on pose). Every other top-level model is a passive body.
+* Units become SI: ``interval_sim``/``interval_real`` are in milliseconds; unnamed models are
+  named ``<type>:<n>`` as Stage does (``n`` counts the models of that built-in type at their level).
+* Extensions: ``odom_noise [x y a]`` on a position model, ``map_resolution``/``origin`` on a
+  floorplan, ``seed`` at world level.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from pathlib import Path
+
+from ..controllers import CONTROLLERS
+from ..errors import WorldFileError
+from ..spec import FloorplanSpec, ModelSpec, WorldSpec, parse_color
+from .devices import DeviceMapping
+from .keywords import (
+    BLOCK_KEYS,
+    DEVICE_TYPES,
+    MODEL_KEYS,
+    NOT_SIMULATED,
+    NOT_SIMULATED_KEYS,
+    POSITION_KEYS,
+    SKIPPED,
+    WORLD_KEYS,
+)  # fmt: skip
+from .macros import Inst
+from .syntax import Prop, Tok
+from .values import (
+    base_key,
+    boolean,
+    check,
+    integer,
+    num,
+    nums,
+    parse_pose,
+    parse_size,
+    string,
+    where,
+)  # fmt: skip
+
+__all__ = ["Mapper"]
+
+DEFAULT_MAP_RESOLUTION = 0.05  # m/pixel, Player's mapfile default
+
+
+class Mapper(DeviceMapping):
+    """Builds a :class:`WorldSpec` from the world properties and top-level models of a load."""
+
+    def __init__(self, display: str, world_props: dict[str, Prop], top: list[Inst]):
+        super().__init__()
+        self.display = display
+        self.world_props = world_props
+        self.top = top
+
+    def build(self, seed: int | None) -> WorldSpec:
+        spec = WorldSpec(source=self.display)
+        self._world(spec)
+        counters: dict[str, int] = {}
+        seen: dict[str, str] = {}
+        for inst in self.top:
+            base = inst.base
+            if base in SKIPPED:
+                continue
+            n = counters.get(base, 0)
+            counters[base] = n + 1
+            if base in NOT_SIMULATED:
+                self._not_simulated(inst)
+                continue
+            if base in DEVICE_TYPES or base == "sensor":
+                self.warn(
+                    inst.tok,
+                    f"'{inst.type_name}' ({base}) at the top level is skipped: devices must be declared "
+                    "inside a position model",
+                )
+                continue
+            name = self._name(inst, f"{base}:{n}")
+            if base == "model" and "bitmap" in inst.props:
+                if spec.floorplan is None:
+                    spec.floorplan = self._floorplan(inst, name)
+                else:
+                    self.warn(
+                        inst.tok,
+                        f"second floorplan '{name}' skipped: only one bitmap model per world "
+                        f"(the first is '{spec.floorplan.name}')",
+                    )
+                continue
+            if name in seen:
+                raise WorldFileError(
+                    f"two models are named '{name}' (the first at {seen[name]}); give each a unique name",
+                    inst.tok.file,
+                    inst.tok.line,
+                )
+            seen[name] = where(inst.tok)
+            model = self._robot(inst, name) if base == "position" else self._passive(inst, name)
+            spec.models.append(model)
+        if seed is not None:
+            spec.seed = int(seed)
+        self.report_not_simulated(self.display)
+        spec.warnings = list(self.warnings)
+        return spec
+
+    def _name(self, inst: Inst, auto: str) -> str:
+        p = inst.props.get("name")
+        if p is None:
+            return auto
+        name = string(p, "a quoted name", 'name "r0"').strip()
+        check(bool(name), p, "a non-empty name", 'name "r0"')
+        return name
+
+    def _not_simulated(self, inst: Inst) -> None:
+        what = f"model type '{inst.base}'"
+        if inst.type_name != inst.base:
+            what += f" ('{inst.type_name}')"
+        self.not_simulated(inst.tok, what)
+
+    def _world(self, spec: WorldSpec) -> None:
+        wp = self.world_props
+        for key, p in wp.items():
+            if base_key(key) not in WORLD_KEYS and not key.startswith("gui_"):
+                close = difflib.get_close_matches(base_key(key), sorted(WORLD_KEYS), n=1, cutoff=0.6)
+                hint = f"; did you mean '{close[0]}'?" if close else ""
+                self.warn(p.tok, f"unknown world keyword '{key}' ignored{hint}", key=("key", p.tok.file, key))
+        if (p := wp.get("interval_sim")) is not None:
+            v = num(p, "a positive number of milliseconds", "interval_sim 100")
+            check(v > 0, p, "a positive number of milliseconds", "interval_sim 100")
+            spec.interval_sim = v / 1000.0
+        if (p := wp.get("interval_real")) is not None:
+            v = num(p, "milliseconds >= 0 (0: as fast as possible)", "interval_real 100")
+            check(v >= 0, p, "milliseconds >= 0 (0: as fast as possible)", "interval_real 100")
+            spec.speedup = math.inf if v == 0 else spec.interval_sim * 1000.0 / v
+        if (p := wp.get("speedup")) is not None:
+            v = num(p, "a real-time factor (-1: as fast as possible)", "speedup 1.0")
+            spec.speedup = math.inf if v <= 0 else v
+        if (p := wp.get("seed")) is not None:
+            spec.seed = integer(p, "an integer", "seed 42")
+        if (p := wp.get("resolution")) is not None:
+            v = num(p, "a positive number of metres", "resolution 0.02")
+            check(v > 0, p, "a positive number of metres", "resolution 0.02")
+            spec.resolution = v
+        if (p := wp.get("quit_time")) is not None:  # Stage: stop when sim time >= quit_time > 0
+            v = num(p, "seconds >= 0 (0: never)", "quit_time 3600")
+            check(v >= 0, p, "seconds >= 0 (0: never)", "quit_time 3600")
+            spec.quit_time = v
+        if (p := wp.get("show_clock_interval")) is not None:
+            need, example = "a number of updates", "show_clock_interval 100"
+            check(num(p, need, example) >= 0, p, need, example)
+        self.scope_not_simulated(wp, NOT_SIMULATED_KEYS["world"])
+        if (p := wp.get("threads")) is not None:
+            integer(p, "an integer", "threads 1")
+        for key in ("paused", "show_clock"):
+            if (p := wp.get(key)) is not None:
+                boolean(p)
+        if (p := wp.get("name")) is not None:
+            string(p, "a quoted name", 'name "tams"')
+
+    # ------------------------------------------------------------------ models
+    def _common(self, inst: Inst, m: ModelSpec) -> None:
+        P = inst.props
+        if (p := P.get("pose")) is not None:
+            m.pose = parse_pose(p)
+        if (p := P.get("size")) is not None:
+            m.size = parse_size(p, m.size[2])
+        if (p := inst.latest("color", "color_rgba")) is not None:
+            if p.key == "color":
+                cname = string(p, "a colour name", 'color "red"')
+                try:
+                    m.color = parse_color(cname)
+                except ValueError as e:
+                    self.warn(p.at, f"{e}; keeping {m.color}", key=("color", p.tok.file, cname.lower()))
+            else:
+                rgba = nums(p, (3, 4), "[r g b a] from 0 to 1", "color_rgba [ 0 1 0 1 ]")
+                m.color = parse_color(rgba)
+        if (p := P.get("mass")) is not None:
+            v = num(p, "kilograms >= 0", "mass 23.0")
+            check(v >= 0, p, "kilograms >= 0", "mass 23.0")
+            m.mass = v
+        if (p := inst.latest("laser_return", "ranger_return")) is not None:
+            if p.key == "ranger_return":  # Stage 4: a float; rangers see the model when it is >= 0
+                v = num(p, "a number (>= 0: seen by rangers, < 0: invisible to them)", "ranger_return 1")
+                m.laser_return = v >= 0.0
+            else:  # Stage 3: 0 invisible, 1 visible, 2 bright
+                m.laser_return = boolean(p, levels=True)
+        for key in ("obstacle_return", "blob_return", "gripper_return"):
+            if (p := P.get(key)) is not None:
+                setattr(m, key, boolean(p))
+        if (p := P.get("origin")) is not None and "bitmap" not in P:
+            m.origin = parse_pose(p)
+        m.blocks = self._blocks(inst)
+        m.source = where(inst.tok)
+
+    def _blocks(self, inst: Inst) -> list[tuple[tuple[float, float], ...]]:
+        """The outlines of the model's ``block( points N point[i] [x y] ... )`` children."""
+        out = []
+        for b in inst.children:
+            if b.base != "block":
+                continue
+            P = b.props
+            self.check_keys(P, BLOCK_KEYS, f"block of '{inst.type_name}'")
+            pp = P.get("points")
+            if pp is None:
+                raise WorldFileError(
+                    "block without 'points': write e.g. 'block( points 4 point[0] [0 0] point[1] [1 0] "
+                    "point[2] [1 1] point[3] [0 1] z [0 1] )'",
+                    b.tok.file,
+                    b.tok.line,
+                )
+            n = integer(pp, "a number of corners >= 3", "points 4")
+            check(3 <= n <= 10_000, pp, "a number of corners >= 3", "points 4")
+            pts = []
+            for i in range(n):
+                q = P.get(f"point[{i}]")  # Stage reads a missing corner as [0 0]
+                x, y = nums(q, (2,), "[x y]", f"point[{i}] [ 0 1 ]") if q is not None else (0.0, 0.0)
+                pts.append((x, y))
+            if (q := P.get("z")) is not None:
+                nums(q, (2,), "[bottom top] heights", "z [ 0 1 ]")
+            out.append(tuple(pts))
+        return out
+
+    def _passive(self, inst: Inst, name: str) -> ModelSpec:
+        self.check_keys(inst.props, MODEL_KEYS, f"model '{name}'")
+        self.scope_not_simulated(inst.props, NOT_SIMULATED_KEYS["model"])
+        m = ModelSpec(name=name, type_name=inst.type_name, position=False)
+        self._common(inst, m)
+        for c in inst.children:
+            if c.base in DEVICE_TYPES or c.base == "position":
+                self.warn(
+                    c.tok,
+                    f"'{c.type_name}' on the passive model '{name}' is not simulated: mount devices "
+                    "on a position model",
+                    key=("passive-dev", c.tok.file, c.tok.line),
+                )
+        return m
+
+    def _robot(self, inst: Inst, name: str) -> ModelSpec:
+        P = inst.props
+        self.check_keys(P, POSITION_KEYS, f"position '{name}'")
+        self.scope_not_simulated(P, NOT_SIMULATED_KEYS["position"])
+        m = ModelSpec(name=name, type_name=inst.type_name, position=True)
+        self._common(inst, m)
+        if (p := P.get("localization")) is not None:
+            loc = string(p, '"odom" or "gps"', 'localization "odom"')
+            check(loc in ("odom", "gps"), p, '"odom" or "gps"', 'localization "odom"')
+            m.localization = loc
+        if (p := P.get("ctrl")) is not None:
+            words = string(p, 'a controller name and its arguments ("wander")', 'ctrl "wander"').split()
+            if words and words[0] in CONTROLLERS:
+                m.ctrl = words[0]
+            else:
+                got = words[0] if words else ""
+                self.warn(
+                    p.at,
+                    f"controller '{got}' of '{name}' is not built in (known: {', '.join(sorted(CONTROLLERS))}); "
+                    "the robot gets no controller",
+                    key=("ctrl", p.tok.file, p.tok.line),
+                )
+        if (p := P.get("drive")) is not None:
+            drive = string(p, 'a drive name ("diff")', 'drive "diff"')
+            if drive != "diff":
+                self.warn(
+                    p.at,
+                    f"drive '{drive}' is not simulated; '{name}' uses a differential drive",
+                    key=("drive", p.tok.file, p.tok.line),
+                )
+        for key in ("velocity_bounds", "acceleration_bounds"):
+            if (p := P.get(key)) is not None:
+                example = f"{key} [ -0.5 0.5 0 0 0 0 -90 90 ]"
+                v = nums(p, (8,), "[xmin xmax ymin ymax zmin zmax amin amax] (m and degrees)", example)
+                lin = max(abs(v[0]), abs(v[1]))
+                ang = math.radians(max(abs(v[6]), abs(v[7])))
+                if key == "velocity_bounds":
+                    m.max_speed = (lin, ang)
+                else:
+                    m.max_accel = (lin, ang)
+        if (p := P.get("odom_error")) is not None:
+            v = nums(p, (3, 4), "[x y z a] error fractions >= 0", "odom_error [ 0.03 0.03 0.00 0.05 ]")
+            check(min(v) >= 0, p, "[x y z a] error fractions >= 0", "odom_error [ 0.03 0.03 0.00 0.05 ]")
+            m.odom_error = (v[0], v[1], v[-1])
+        if (p := P.get("odom_noise")) is not None:
+            v = nums(p, (3,), "[x y a] noise fractions >= 0", "odom_noise [ 0.01 0.01 0.02 ]")
+            check(min(v) >= 0, p, "[x y a] noise fractions >= 0", "odom_noise [ 0.01 0.01 0.02 ]")
+            m.odom_noise = (v[0], v[1], v[2])
+        self._devices(inst, m, (0.0, 0.0, 0.0), {})
+        return m
+
+    # ------------------------------------------------------------------ floorplan
+    def _floorplan(self, inst: Inst, name: str) -> FloorplanSpec:
+        P = inst.props
+        self.check_keys(P, MODEL_KEYS, f"floorplan '{name}'")
+        self.scope_not_simulated(P, NOT_SIMULATED_KEYS["floorplan"])
+        self._common(inst, ModelSpec(name=name))  # validates pose, size, colour, flags
+        boundary = boolean(P["boundary"]) if "boundary" in P else False
+        bp = P["bitmap"]
+        rel = string(bp, "a quoted image file name", 'bitmap "floor.png"').strip()
+        check(bool(rel), bp, "a quoted image file name", 'bitmap "floor.png"')
+        path = Path(bp.tok.file).parent / rel
+        try:
+            exists = path.is_file()
+        except (OSError, ValueError):
+            exists = False
+        if not exists:
+            raise WorldFileError(
+                f"bitmap file '{rel}' not found (looked for {path}); bitmap paths are relative to the "
+                "file that sets them",
+                bp.at.file,
+                bp.at.line,
+            )
+        w, h = image_size(path, rel, bp.at)
+        px, py, pa = parse_pose(P["pose"]) if "pose" in P else (0.0, 0.0, 0.0)
+        if pa != 0.0:
+            self.warn(P["pose"].at, f"floorplan '{name}': rotation ignored, a bitmap is always axis-aligned")
+        if (p := P.get("size")) is not None:
+            sx, sy, _ = parse_size(p, 0.0)
+            ox = oy = 0.0
+            if (q := P.get("origin")) is not None:  # Stage: the bitmap's centre offset from the pose
+                ox, oy, _ = parse_pose(q)
+            return FloorplanSpec(
+                bitmap=path.absolute(),
+                resolution=sx / w,
+                origin=(px + ox - sx / 2.0, py + oy - sy / 2.0),
+                size=(sx, sy),
+                name=name,
+                boundary=boundary,
+            )
+        res = DEFAULT_MAP_RESOLUTION
+        if (p := P.get("map_resolution")) is not None:
+            res = num(p, "metres per pixel > 0", "map_resolution 0.05")
+            check(res > 0, p, "metres per pixel > 0", "map_resolution 0.05")
+        if (p := P.get("origin")) is not None:
+            v = nums(p, (2, 3, 4), "[x y] of the bottom-left corner in metres", "origin [ -31.475 -7.8 ]")
+            origin = (v[0], v[1])
+        else:
+            origin = (px - w * res / 2.0, py - h * res / 2.0)
+        return FloorplanSpec(
+            bitmap=path.absolute(), resolution=res, origin=origin, size=None, name=name, boundary=boundary
+        )
+
+
+def image_size(path: Path, rel: str, tok: Tok) -> tuple[int, int]:
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            w, h = im.size
+    except Exception as e:  # Pillow raises many types for bad files; all mean "not an image"
+        raise WorldFileError(
+            f"bitmap '{rel}' is not an image Pillow can read ({type(e).__name__}); use a PNG",
+            tok.file,
+            tok.line,
+        ) from None
+    if w <= 0 or h <= 0:
+        raise WorldFileError(f"bitmap '{rel}' is empty ({w} x {h} pixels)", tok.file, tok.line)
+    return int(w), int(h)
