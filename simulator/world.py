@@ -42,7 +42,6 @@ from .drive import Drives
 from .errors import ModelError, OutOfWorld, SimulatorError
 from .gridmap import GridMap
 from .raycast import CircleIndex
-from .shapes import make_shapes
 from .sensors import SENSOR_TYPES, Sensor
 from .sensors.base import Model, wrap
 from .sensors.blobfinder import Blob
@@ -50,6 +49,7 @@ from .sensors.bumper import BumperReading
 from .sensors.fiducial import Fiducial
 from .sensors.gripper import GripperState
 from .sensors.ranger import SONAR_SUBRAYS, RangerReading
+from .shapes import make_shapes
 from .spec import ModelSpec, RangerSpec, WorldSpec
 
 __all__ = ["World", "RangerReading", "Blob", "BumperReading", "Fiducial", "GripperState", "SONAR_SUBRAYS"]
