@@ -31,7 +31,7 @@ from rsal.msgs import MapData
 from rsal.transport import TransportArgs
 from simulator.loader import load_world
 from simulator.world import World
-from tests.conftest import MAPS, ROOT, free_port, rsal_cmd, wait_until
+from tests.conftest import MAPS, ROOT, SPEEDUP, free_port, rsal_cmd, wait_until
 
 STARTS = [(-20.5, 5.0), (-14.0, 5.5), (-21.0, 8.0)]  # r0..r2 of maps/distribution.world
 
@@ -234,7 +234,9 @@ def test_three_navagents_reach_distinct_targets_with_rsal_run(procs):
     ep = f"tcp/127.0.0.1:{free_port()}"
     scenario = str(ROOT / "deploy" / "scenarios" / "distribution.yaml")
     run = procs(
-        rsal_cmd("run", scenario, "--app", "three", "--listen", ep, "--set", "within=[-31, -8, 2, 12]"),
+        rsal_cmd(
+            "run", scenario, "--app", "three", "--listen", ep, "--set", "within=[-31, -8, 2, 12]", "--speedup", SPEEDUP
+        ),
     )
     wait_until(lambda: not run.alive(), 600, "the distribution run to end")
     out = run.output()
