@@ -132,3 +132,26 @@ class Sensor:
     def describe(self, name: str) -> Any:
         """This kind's entry in :meth:`World.describe` for robot ``name`` (default: the count)."""
         return len(self.devices.get(name, []))
+
+
+class ReadingSensor(Sensor):
+    """A sensor whose devices each keep their latest reading (``None`` until the first update):
+    ``self.readings[name][index]``, kept in step with the models added and removed."""
+
+    def __init__(self, world: World):
+        super().__init__(world)
+        self.readings: dict[str, list[Any]] = {}
+
+    def add(self, model: Model) -> None:
+        super().add(model)
+        if model.spec.name in self.devices:
+            self.readings[model.spec.name] = [None] * len(self.devices[model.spec.name])
+
+    def remove(self, model: Model) -> None:
+        super().remove(model)
+        self.readings.pop(model.spec.name, None)
+
+    def reading(self, name: str, index: int) -> Any:
+        """The latest reading of ``name``'s device ``index`` (errors as :meth:`device`)."""
+        self.device(name, index)
+        return self.readings[name][index]

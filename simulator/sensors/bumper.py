@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 
 from ..raycast import cast_fans
 from ..spec import BumperSpec
-from .base import Sensor
+from .base import ReadingSensor
 
 __all__ = ["BumperReading", "Bumpers"]
 
@@ -42,28 +42,14 @@ class BumperReading:
     spec: BumperSpec
 
 
-class Bumpers(Sensor):
+class Bumpers(ReadingSensor):
     kind = "bumper"
     spec_field = "bumpers"
     describe_key = "bumpers"
 
     def __init__(self, world):
         super().__init__(world)
-        self.readings: dict[str, list[BumperReading | None]] = {}
         self._solid_for: object = None  # the world's body list the solid table below was made from
-
-    def add(self, model) -> None:
-        super().add(model)
-        if model.spec.name in self.devices:
-            self.readings[model.spec.name] = [None] * len(self.devices[model.spec.name])
-
-    def remove(self, model) -> None:
-        super().remove(model)
-        self.readings.pop(model.spec.name, None)
-
-    def reading(self, name: str, index: int) -> BumperReading | None:
-        self.device(name, index)
-        return self.readings[name][index]
 
     def describe(self, name: str) -> list[tuple[str, int]]:
         return [(b.name, len(b.segments)) for b in self.devices.get(name, [])]

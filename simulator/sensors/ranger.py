@@ -18,7 +18,7 @@ import numpy as np
 
 from ..raycast import cast_fans, segment_min
 from ..spec import RangerSpec
-from .base import Sensor
+from .base import ReadingSensor
 
 __all__ = ["SONAR_SUBRAYS", "RangerReading", "Rangers"]
 
@@ -34,7 +34,7 @@ class RangerReading:
     spec: RangerSpec
 
 
-class Rangers(Sensor):
+class Rangers(ReadingSensor):
     """Every ranger of every robot, cast together."""
 
     kind = "ranger"
@@ -43,24 +43,10 @@ class Rangers(Sensor):
 
     def __init__(self, world):
         super().__init__(world)
-        self.readings: dict[str, list[RangerReading | None]] = {}
         self.fans: dict[str, np.ndarray] = {}
         self._slices: list[tuple[str, int, int, int, int]] = []
         self._scan_out = np.zeros(0, dtype=np.float32)
         self._reduce: tuple[np.ndarray, np.ndarray] | None = None  # (first ray, ray count) per reading
-
-    def add(self, model) -> None:
-        super().add(model)
-        if model.spec.name in self.devices:
-            self.readings[model.spec.name] = [None] * len(self.devices[model.spec.name])
-
-    def remove(self, model) -> None:
-        super().remove(model)
-        self.readings.pop(model.spec.name, None)
-
-    def reading(self, name: str, index: int) -> RangerReading | None:
-        self.device(name, index)
-        return self.readings[name][index]
 
     def specs(self, name: str) -> list[RangerSpec]:
         return list(self.devices.get(name, []))
