@@ -25,6 +25,7 @@ from typing import Any
 import zenoh
 
 from rsal.clock import clock
+from rsal.keys import AGENTS_PREFIX, agent_key
 from rsal.transport import TransportArgs, open_session
 
 from .services import Filter, Hello, Message, Services, Subscription, check_name
@@ -32,13 +33,6 @@ from .services import Filter, Hello, Message, Services, Subscription, check_name
 __all__ = ["AGENTS_PREFIX", "Agent", "AgentHost", "agent_key"]
 
 log = logging.getLogger(__name__)
-
-AGENTS_PREFIX = "agents"
-
-
-def agent_key(agent_id: str) -> str:
-    """The liveliness key of a running agent: ``agents/<agent_id>``."""
-    return f"{AGENTS_PREFIX}/{agent_id}"
 
 
 class Agent:

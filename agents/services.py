@@ -20,7 +20,6 @@ from __future__ import annotations
 import asyncio
 import inspect
 import logging
-import re
 import time
 import uuid
 from collections.abc import Awaitable, Callable
@@ -29,6 +28,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import zenoh
 
+from rsal.keys import SVC_PREFIX, check_name, service_key
 from rsal.msgs import MessageError, decode_map, encode, get_bool, get_float, get_str
 
 if TYPE_CHECKING:
@@ -56,22 +56,8 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-SVC_PREFIX = "svc"
 HELLO = "hello"
-_NAME = re.compile(r"^[A-Za-z0-9_.\-]+$")
 _ENVELOPE = ("sender", "conversation", "time")
-
-
-def check_name(kind: str, name: str) -> str:
-    """A service name or agent id must be one key chunk: letters, digits, ``_ . -``."""
-    if not isinstance(name, str) or not _NAME.match(name):
-        raise ValueError(f"{kind} {name!r} must be one key chunk of letters, digits, '_', '.' or '-'")
-    return name
-
-
-def service_key(service: str, sender: str = "*") -> str:
-    """``svc/<service>/<sender>`` (``*`` for every sender)."""
-    return f"{SVC_PREFIX}/{service}/{sender}"
 
 
 # ---------------------------------------------------------------------------- message bodies

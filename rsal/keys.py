@@ -34,6 +34,9 @@ __all__ = [
     "event_key",
     "parse_key",
     "template_to_keyexpr",
+    "AGENTS_PREFIX",
+    "SVC_PREFIX",
+    "check_name",
     "agent_key",
     "service_key",
 ]
@@ -62,7 +65,9 @@ _NAME = re.compile(r"^[A-Za-z0-9_\-.]+$")  # no '/', '*', '$', '?', '#', ':' and
 def check_name(kind: str, value: str) -> str:
     """A node, interface, key or agent name must be one key chunk: letters, digits, ``_ - .``."""
     if not isinstance(value, str) or not _NAME.match(value):
-        raise ValueError(f"{kind} {value!r} must be letters, digits, '_', '-' or '.' (no '/', '*', ':' or spaces)")
+        raise ValueError(
+            f"{kind} {value!r} must be letters, digits, '_', '-' or '.' (one key chunk: no '/', '*', ':' or spaces)"
+        )
     return value
 
 
@@ -202,10 +207,17 @@ def template_to_keyexpr(template: str) -> str:
     return t
 
 
+#: agents' liveliness tokens live under ``agents/<agent id>``; service messages under ``svc/``
+AGENTS_PREFIX = "agents"
+SVC_PREFIX = "svc"
+
+
 def agent_key(agent_id: str) -> str:
-    return f"agents/{check_name('agent id', agent_id)}"
+    """The liveliness key of a running agent: ``agents/<agent_id>``."""
+    return f"{AGENTS_PREFIX}/{check_name('agent id', agent_id)}"
 
 
 def service_key(service: str, sender: str = "*") -> str:
+    """``svc/<service>/<sender>`` (``*`` for every sender)."""
     s = check_name("service", service)
-    return f"svc/{s}/{sender if sender == '*' else check_name('sender id', sender)}"
+    return f"{SVC_PREFIX}/{s}/{sender if sender == '*' else check_name('sender id', sender)}"
