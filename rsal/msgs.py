@@ -19,6 +19,7 @@ message; this module and the interface modules are the implementation of that do
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -245,6 +246,17 @@ def get_vec(m: dict, name: str, n: int, default: tuple | None = None) -> tuple[f
             raise MessageError(f"field {name!r}[{i}] must be a finite number, not {x!r}")
         out.append(float(x))
     return tuple(out)
+
+
+def get_list(m: dict, name: str, item: Callable[[Any], Any], required: bool = True) -> list:
+    """Field ``name`` as a list, each element decoded by ``item`` (a ``from_dict``); an absent
+    optional field is the empty list."""
+    raw = _need(m, name, required)
+    if raw is None:
+        return []
+    if not isinstance(raw, list):
+        raise MessageError(f"field {name!r} must be a list")
+    return [item(x) for x in raw]
 
 
 _F32 = np.dtype("<f4")

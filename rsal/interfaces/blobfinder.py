@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 from ..data import BlobfinderBlob
-from ..msgs import MessageError, _Msg, _need, get_float, get_int
+from ..msgs import MessageError, _Msg, get_float, get_int, get_list
 from .base import Device, Interface
 
 __all__ = ["BlobData", "BlobfinderData", "Blobfinder", "INTERFACE"]
@@ -53,14 +53,11 @@ class BlobfinderData(_Msg):
 
     @classmethod
     def from_dict(cls, m: dict) -> BlobfinderData:
-        raw = _need(m, "blobs", True)
-        if not isinstance(raw, list):
-            raise MessageError("field 'blobs' must be a list")
         return cls(
             get_float(m, "t"),
             get_int(m, "width", lo=0),
             get_int(m, "height", lo=0),
-            [BlobData.from_dict(b) for b in raw],
+            get_list(m, "blobs", BlobData.from_dict),
         )
 
     def to_dict(self) -> dict:

@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..msgs import Describe, MessageError, _Msg, _need, get_float, get_int, get_vec
+from ..msgs import Describe, MessageError, _Msg, get_float, get_int, get_list, get_vec
 from .base import Device, Interface
 
 __all__ = ["FiducialItem", "FiducialData", "FiducialGeometry", "Fiducial", "INTERFACE"]
@@ -59,10 +59,7 @@ class FiducialData(_Msg):
 
     @classmethod
     def from_dict(cls, m: dict) -> FiducialData:
-        raw = _need(m, "fiducials", True)
-        if not isinstance(raw, list):
-            raise MessageError("field 'fiducials' must be a list")
-        return cls(get_float(m, "t"), [FiducialItem.from_dict(f) for f in raw])
+        return cls(get_float(m, "t"), get_list(m, "fiducials", FiducialItem.from_dict))
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..data import Position
-from ..msgs import MessageError, _Msg, _need, get_float, get_int, get_vec
+from ..msgs import MessageError, _Msg, get_float, get_int, get_list, get_vec
 from .base import Device, Interface
 
 __all__ = ["Hypothesis", "LocalizeData", "Localize", "INTERFACE"]
@@ -56,14 +56,11 @@ class LocalizeData(_Msg):
 
     @classmethod
     def from_dict(cls, m: dict) -> LocalizeData:
-        raw = _need(m, "hypotheses", False) or []
-        if not isinstance(raw, list):
-            raise MessageError("field 'hypotheses' must be a list")
         return cls(
             get_float(m, "t"),
             get_vec(m, "pose", 3),
             _cov9(m, "cov"),
-            [Hypothesis.from_dict(h) for h in raw],
+            get_list(m, "hypotheses", Hypothesis.from_dict, False),
             get_int(m, "particles", 0, lo=0),
             get_int(m, "pending", 0, lo=0),
         )
