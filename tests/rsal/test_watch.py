@@ -322,6 +322,37 @@ def test_watch_records_map_robot_laser_path_and_services(procs, tmp_path):
     assert rows["world/robots/r0/laser"] >= 20  # ~5 scans/s for most of 40 s
 
 
+CONTACT_WORLD = """\
+interval_sim 100
+position
+(
+  name "r0"
+  size [ 0.44 0.38 0.22 ]
+  bumper( bcount 2 blength 0.15 bpose[0] [ 0.235 0.08 0 0 ] bpose[1] [ 0.235 -0.08 0 0 ] )
+  fiducial( range_max 6 fov 180 )
+)
+model( name "box" pose [ 0.40 0 0 0 ] size [ 0.3 0.3 0.3 ] mass 1000 )
+model( name "beacon" pose [ 2 1.5 0 0 ] size [ 0.1 0.1 0.1 ] obstacle_return 0 fiducial_return 3 )
+"""
+
+
+def test_a_stage_worlds_bumper_and_fiducial_reach_the_live_view(procs, tmp_path):
+    """End to end: Stage world file -> simulator -> rsal sim's devices -> rsal watch -> .rrd."""
+    world = tmp_path / "contact.world"
+    world.write_text(CONTACT_WORLD)
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    sim = procs(rsal_cmd("sim", str(world), "--listen", ep))
+    wait_until(lambda: "device(s) up" in sim.output() or not sim.alive(), 90, "rsal sim to serve")
+    assert "not simulated" not in sim.output(), sim.output()
+    out = tmp_path / "contact.rrd"
+    watch = procs(rsal_cmd("watch", "--save", str(out), "--duration", "8", "--wait", "60", "--connect", ep))
+    wait_until(lambda: not watch.alive(), 90, "watch to stop after --duration")
+    assert watch.p.returncode == 0, watch.output()
+    rows = _read_rrd(out)
+    for path in ("world/robots/r0/truth/bumper", "world/robots/r0/truth/fiducial"):
+        assert rows[path] > 0, f"{path} missing from {sorted(rows)}"
+
+
 @pytest.mark.timeout(120)
 def test_sigint_exits_0_with_a_complete_file(procs, tmp_path):
     sim, ep = _start_sim(procs)
