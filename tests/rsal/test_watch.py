@@ -1,4 +1,4 @@
-"""``rsal watch`` (rsal/watch.py): the pure conversions, the latest-wins logger against an in-memory
+"""``rsal watch`` (rsal/watch/): the pure conversions, the latest-wins logger against an in-memory
 recording, and the command as a real process against ``rsal sim`` whose ``.rrd`` file is read back."""
 
 from __future__ import annotations
