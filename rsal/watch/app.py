@@ -219,6 +219,8 @@ class Watcher(Subscriptions):
             self._scan_nodes = {a.node for a in self._alive if a.interface in ("laser", "sonar")}
             self._geometry.pop(addr, None)
             self._layout.pop(addr, None)
+            self._typed.pop(addr, None)  # a device that comes back may describe another geometry
+            self._drawn.pop(addr, None)
             if addr == self._sim:
                 self._sim = None
                 self._sim_models = None
@@ -245,6 +247,7 @@ class Watcher(Subscriptions):
             self._describing.pop(addr, None)
             geo = r.get("geometry") if isinstance(r.get("geometry"), dict) else {}
             self._geometry[addr] = geo
+            self._typed.pop(addr, None)
             if addr.interface == "position2d" and addr.index == 0 and isinstance(geo.get("size"), list):
                 rb = self.robot(addr.node)
                 rb.size = (float(geo["size"][0]), float(geo["size"][1]))
