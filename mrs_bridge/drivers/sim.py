@@ -9,12 +9,14 @@
 - ``sim`` (alias ``stage``) binds one robot model (``model``) and provides its ``position2d``
   (odometry pose, or ground truth with ``localization = "gps"``), ``ranger:i`` (the model's i-th
   ranger), ``sonar`` and ``laser`` (its first sonar / laser ranger), ``blobfinder``, ``gripper``,
-  ``bumper`` (contact switches), ``fiducial`` (a fiducial finder) and ``power`` (a simulated
-  battery). Which of them a robot has comes from its world model: :func:`robot_devices` asks the
-  simulator's sensor plug-ins (:func:`simulator.sensors.player_devices`), so a new sensor kind adds
-  its devices without touching ``rsal sim``. Its ``position2d`` stops the robot when velocity
-  commands stop for ``cmd_timeout`` s and latches an emergency stop (:mod:`mrs_bridge.baseguard`).
+  ``bumper``, ``fiducial`` and ``power`` (a simulated battery); which of them a robot has comes
+  from its world model (:func:`robot_devices`, from the simulator's sensor plug-ins). Its
+  ``position2d`` stops the robot when velocity commands stop for ``cmd_timeout`` s and latches an
+  emergency stop (:mod:`mrs_bridge.baseguard`).
 - ``mapfile`` (:mod:`mrs_bridge.drivers.mapfile`) serves the floorplan as a map.
+
+Slightly over 500 lines: each simulated interface's reading-to-message step lives here, since the
+simulator imports nothing of ours.
 """
 
 from __future__ import annotations
@@ -267,10 +269,7 @@ class SimDriver(Driver):
             elif a.interface == "gripper" and i >= len(self.spec.grippers):
                 raise ConfigError(f"{cfg.where}: model {self.model!r} has no gripper:{i}")
             elif a.interface in ("bumper", "fiducial") and (a.interface, i) not in robot_devices(self.spec):
-                raise ConfigError(
-                    f"{cfg.where}: model {self.model!r} has no {a.interface}:{i}; add a {a.interface} model to it "
-                    "in the world file, or remove the device from 'provides'"
-                )
+                raise ConfigError(f"{cfg.where}: model {self.model!r} has no {a.interface}:{i}; add one in the world")
         self._last_scan: dict[DeviceAddr, float] = {}
         self._last_grip: dict[DeviceAddr, tuple] = {}
         self._last_contact: dict[DeviceAddr, float] = {}  # sim time of the bumper/fiducial data last sent
@@ -290,10 +289,8 @@ class SimDriver(Driver):
             return 1.0
         if addr.interface in ("ranger", "sonar", "laser"):
             return 1.0 / self.world.rangers(self.model)[self._src[addr]].interval
-        if addr.interface == "bumper":
-            return 1.0 / self.spec.bumpers[addr.index].interval
-        if addr.interface == "fiducial":
-            return 1.0 / self.spec.fiducials[addr.index].interval
+        if addr.interface in ("bumper", "fiducial"):  # spec lists "bumpers", "fiducials"
+            return 1.0 / getattr(self.spec, addr.interface + "s")[addr.index].interval
         return 1.0 / self.world.spec.interval_sim
 
     # ------------------------------------------------------------------ publishing
@@ -361,9 +358,8 @@ class SimDriver(Driver):
         return RangerData(r.time, r.ranges, -sen.fov / 2 + sen.pose[2], step, sen.range_min, sen.range_max)
 
     def _publish_fiducial(self, w, a: DeviceAddr) -> None:
-        """The finder's detections when it updated this step. The simulator reports Stage's id 0
-        for a model beyond ``range_max_id``; on the wire an unidentified fiducial is id -1
-        (``fiducial_return`` 0 means "not a fiducial", so 0 is never a real id)."""
+        """The finder's detections when it updated this step; Stage's id 0 (beyond ``range_max_id``)
+        travels as -1, the wire's "not identified" (``fiducial_return`` 0 is never a real id)."""
         t = w.sensors["fiducial"].updated(self.model, a.index)
         if t < 0 or self._last_contact.get(a) == t:
             return
@@ -502,8 +498,7 @@ class SimDriver(Driver):
             return {"pose": list(g.pose), "size": list(g.size), "capacity": 1}
         if addr.interface == "bumper":
             b = s.bumpers[addr.index]
-            segs = tuple(BumperSegment(tuple(x.pose), x.length) for x in b.segments)
-            return BumperGeometry(tuple(b.pose), segs).to_dict()
+            return BumperGeometry(b.pose, tuple(BumperSegment(x.pose, x.length) for x in b.segments)).to_dict()
         if addr.interface == "fiducial":
             f = s.fiducials[addr.index]
             return FiducialGeometry(tuple(f.pose), f.fov, f.range_min, f.range_max, f.range_max_id).to_dict()

@@ -69,7 +69,7 @@ def test_a_device_the_model_lacks_is_refused_with_the_fix():
     class _Server:
         shared = {"simulator.world": w}
 
-    with pytest.raises(ConfigError, match=r"t.toml:3: model 'r1' has no bumper:0; add a bumper model"):
+    with pytest.raises(ConfigError, match=r"t.toml:3: model 'r1' has no bumper:0; add one in the world"):
         SimDriver(cfg.drivers[1], _Server())
 
 
