@@ -5,7 +5,8 @@ entry points).
 ``rsal serve`` runs the drivers of a TOML configuration (see :mod:`mrs_bridge.config`).
 ``rsal sim`` is the shorthand of DESIGN "Processes": one server with the simulator in-process,
 a ``simulation`` driver on node ``sim``, the floorplan as ``sim:map:0`` and one ``sim`` driver per
-robot model, whose devices live on the node named after the model (``r0:position2d:0``...).
+robot model, whose devices live on the node named after the model (``r0:position2d:0``...); which
+devices a robot has comes from its world model (:func:`mrs_bridge.drivers.sim.robot_devices`).
 ``--node NAME`` puts the simulation and map devices on another node, so that two simulators (e.g.
 a virtual world and the stand-in for reality of a mixed-reality run, thesis 4.3) share one fabric.
 Both stop cleanly on SIGTERM or Ctrl-C: motors stopped, tokens withdrawn, session closed.
@@ -107,6 +108,7 @@ def sim_config(
     """
     from rsal.keys import DeviceAddr, parse_device
 
+    from .drivers.sim import robot_devices
     from .nav import profile
 
     def block(name, node, provides, requires=(), **params):
@@ -124,17 +126,7 @@ def sim_config(
     if map_device and world.grid is not None:
         drivers.append(block("simmap", node, [("map", 0)]))
     for name in world.robot_names:
-        spec = world.model_spec(name)
-        prov = [("position2d", 0)]
-        prov += [("ranger", i) for i in range(len(spec.rangers))]
-        if any(r.kind == "sonar" for r in spec.rangers):
-            prov.append(("sonar", 0))
-        if any(r.kind != "sonar" for r in spec.rangers):
-            prov.append(("laser", 0))
-        prov += [("blobfinder", i) for i in range(len(spec.blobfinders))]
-        prov += [("gripper", i) for i in range(len(spec.grippers))]
-        prov.append(("power", 0))
-        drivers.append(block("sim", name, prov, model=name))
+        drivers.append(block("sim", name, robot_devices(world.model_spec(name)), model=name))
     if nav:
         if world.grid is None or not map_device:
             raise ConfigError(f"{source}: --nav needs the world's floorplan served as {map_addr}")

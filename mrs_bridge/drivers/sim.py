@@ -8,10 +8,15 @@
   reached it logs so and stops the server cleanly.
 - ``sim`` (alias ``stage``) binds one robot model (``model``) and provides its ``position2d``
   (odometry pose, or ground truth with ``localization = "gps"``), ``ranger:i`` (the model's i-th
-  ranger), ``sonar`` and ``laser`` (its first sonar / laser ranger), ``blobfinder``, ``gripper``
-  and ``power`` (a simulated battery). Its ``position2d`` stops the robot when velocity commands
-  stop for ``cmd_timeout`` s and latches an emergency stop (:mod:`mrs_bridge.baseguard`).
+  ranger), ``sonar`` and ``laser`` (its first sonar / laser ranger), ``blobfinder``, ``gripper``,
+  ``bumper``, ``fiducial`` and ``power`` (a simulated battery); which of them a robot has comes
+  from its world model (:func:`robot_devices`, from the simulator's sensor plug-ins). Its
+  ``position2d`` stops the robot when velocity commands stop for ``cmd_timeout`` s and latches an
+  emergency stop (:mod:`mrs_bridge.baseguard`).
 - ``mapfile`` (:mod:`mrs_bridge.drivers.mapfile`) serves the floorplan as a map.
+
+Slightly over 500 lines: each simulated interface's reading-to-message step lives here, since the
+simulator imports nothing of ours.
 """
 
 from __future__ import annotations
@@ -21,6 +26,8 @@ import math
 import time
 from typing import Any
 
+from rsal.interfaces.bumper import BumperData, BumperGeometry, BumperSegment
+from rsal.interfaces.fiducial import FiducialData, FiducialGeometry, FiducialItem
 from rsal.keys import DeviceAddr
 from rsal.msgs import (
     BlobData,
@@ -47,7 +54,7 @@ from ..driver import Deferred, Driver, OutOfRange, register
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SimulationDriver", "SimDriver"]
+__all__ = ["SimulationDriver", "SimDriver", "robot_devices"]
 
 WORLD_KEY = "simulator.world"
 STEP_SLICE = 0.01  # s of stepping per scheduler pass for rpc/step
@@ -193,13 +200,22 @@ class SimulationDriver(Driver):
         return Deferred(work)
 
 
+def robot_devices(spec) -> list[tuple[str, int]]:
+    """The devices ``(interface, index)`` a ``sim`` driver serves for a robot of model ``spec``
+    (a :class:`simulator.spec.ModelSpec`): its ``position2d:0``, what its sensors serve (each
+    sensor plug-in declares its devices) and its simulated battery ``power:0``."""
+    from simulator.sensors import player_devices
+
+    return [("position2d", 0), *player_devices(spec), ("power", 0)]
+
+
 def _battery_volts(percent: float) -> float:
     return 10.5 + 2.5 * percent / 100.0
 
 
 @register("sim", "stage")
 class SimDriver(Driver):
-    interfaces = ("position2d", "ranger", "sonar", "laser", "blobfinder", "gripper", "power")
+    interfaces = ("position2d", "ranger", "sonar", "laser", "blobfinder", "gripper", "bumper", "fiducial", "power")
     default_rate = 0.0  # publishes after each simulation step
     data_types = {
         "position2d": "Position2dData",
@@ -208,6 +224,8 @@ class SimDriver(Driver):
         "laser": "RangerData",
         "blobfinder": "BlobfinderData",
         "gripper": "GripperData",
+        "bumper": "BumperData",
+        "fiducial": "FiducialData",
         "power": "PowerData",
     }
     cmd_types = {"position2d": "VelocityCmd", "gripper": "GripperCmd"}
@@ -250,8 +268,11 @@ class SimDriver(Driver):
                 raise ConfigError(f"{cfg.where}: model {self.model!r} has no blobfinder:{i}")
             elif a.interface == "gripper" and i >= len(self.spec.grippers):
                 raise ConfigError(f"{cfg.where}: model {self.model!r} has no gripper:{i}")
+            elif a.interface in ("bumper", "fiducial") and (a.interface, i) not in robot_devices(self.spec):
+                raise ConfigError(f"{cfg.where}: model {self.model!r} has no {a.interface}:{i}; add one in the world")
         self._last_scan: dict[DeviceAddr, float] = {}
         self._last_grip: dict[DeviceAddr, tuple] = {}
+        self._last_contact: dict[DeviceAddr, float] = {}  # sim time of the bumper/fiducial data last sent
         self.battery = float(cfg.param("battery_percent", 100.0))
         self._last_power = -math.inf
         self.motors = True
@@ -268,6 +289,8 @@ class SimDriver(Driver):
             return 1.0
         if addr.interface in ("ranger", "sonar", "laser"):
             return 1.0 / self.world.rangers(self.model)[self._src[addr]].interval
+        if addr.interface in ("bumper", "fiducial"):  # spec lists "bumpers", "fiducials"
+            return 1.0 / getattr(self.spec, addr.interface + "s")[addr.index].interval
         return 1.0 / self.world.spec.interval_sim
 
     # ------------------------------------------------------------------ publishing
@@ -310,6 +333,14 @@ class SimDriver(Driver):
                         a, {"t": t, "event": "state", "paddles": st.paddles, "lift": st.lift, "carrying": st.carrying}
                     )
                 self._last_grip[a] = now_state
+            elif iface == "bumper":
+                b = w.bumper(self.model, a.index)
+                if b is None or self._last_contact.get(a) == b.time:
+                    continue
+                self._last_contact[a] = b.time
+                self.publish(a, BumperData(b.time, tuple(int(x) for x in b.pressed)))
+            elif iface == "fiducial":
+                self._publish_fiducial(w, a)
             elif iface == "power":
                 drain = 0.002 + 0.01 * abs(v)  # % per simulated second
                 self.battery = max(0.0, self.battery - drain * w.spec.interval_sim)
@@ -325,6 +356,16 @@ class SimDriver(Driver):
         sen = s[0]
         step = sen.fov / (sen.samples - 1) if sen.samples > 1 else 0.0
         return RangerData(r.time, r.ranges, -sen.fov / 2 + sen.pose[2], step, sen.range_min, sen.range_max)
+
+    def _publish_fiducial(self, w, a: DeviceAddr) -> None:
+        """The finder's detections when it updated this step; Stage's id 0 (beyond ``range_max_id``)
+        travels as -1, the wire's "not identified" (``fiducial_return`` 0 is never a real id)."""
+        t = w.sensors["fiducial"].updated(self.model, a.index)
+        if t < 0 or self._last_contact.get(a) == t:
+            return
+        self._last_contact[a] = t
+        items = [FiducialItem(f.id or -1, f.pose, f.range, f.bearing) for f in w.fiducial(self.model, a.index)]
+        self.publish(a, FiducialData(t, items))
 
     def _blob_msg(self, w, index: int) -> BlobfinderData:
         spec = self.spec.blobfinders[index]
@@ -455,6 +496,12 @@ class SimDriver(Driver):
         if addr.interface == "gripper":
             g = s.grippers[addr.index]
             return {"pose": list(g.pose), "size": list(g.size), "capacity": 1}
+        if addr.interface == "bumper":
+            b = s.bumpers[addr.index]
+            return BumperGeometry(b.pose, tuple(BumperSegment(x.pose, x.length) for x in b.segments)).to_dict()
+        if addr.interface == "fiducial":
+            f = s.fiducials[addr.index]
+            return FiducialGeometry(tuple(f.pose), f.fov, f.range_min, f.range_max, f.range_max_id).to_dict()
         return {}
 
     def shutdown(self) -> None:

@@ -19,6 +19,10 @@ The life of a plug-in (all calls come from the world's one thread):
   all robots.
 * read accessors (``reading(name, index)``, ...) and :meth:`Sensor.describe` for
   :meth:`World.describe`.
+* :meth:`Sensor.player_devices` (a class method, no world needed): the Player devices
+  ``(interface, index)`` a robot with a given spec serves from this kind -- one ``<kind>:<i>`` per
+  device by default. The ``sim`` driver and ``rsal sim`` build a robot's device list from it
+  (:func:`simulator.sensors.player_devices`), so a new kind adds its devices by itself.
 """
 
 from __future__ import annotations
@@ -84,6 +88,12 @@ class Sensor:
         self.world = world
         self.devices: dict[str, list[Any]] = {}  # robot name -> device states, in spec order
         self.dirty = True
+
+    @classmethod
+    def player_devices(cls, spec: ModelSpec) -> list[tuple[str, int]]:
+        """The Player devices ``(interface, index)`` a robot with ``spec`` serves from this kind:
+        ``(kind, i)`` for each of its specs by default (override for aliases, as rangers do)."""
+        return [(cls.kind, i) for i in range(len(getattr(spec, cls.spec_field, None) or []))]
 
     # ------------------------------------------------------------------ models
     def make(self, model: Model, spec: Any) -> Any:

@@ -55,6 +55,7 @@ class _Finder:
     spec: FiducialSpec
     model: Model
     seen: list[Fiducial] = field(default_factory=list)
+    time: float = -1.0  # sim time of the last update (-1 before the first)
 
 
 class Fiducials(Sensor):
@@ -72,6 +73,11 @@ class Fiducials(Sensor):
     def seen(self, name: str, index: int) -> list[Fiducial]:
         return list(self.device(name, index).seen)
 
+    def updated(self, name: str, index: int) -> float:
+        """Sim time of the last update of ``name``'s finder ``index`` (-1 before the first): a
+        reader publishes at the finder's rate by comparing it with the time it last published."""
+        return self.device(name, index).time
+
     def rebuild(self) -> None:
         self._marked = [m for m in self.world.models.values() if m.spec.fiducial_return]
         self._ids = np.array([m.spec.fiducial_return for m in self._marked], dtype=np.int64)
@@ -85,6 +91,7 @@ class Fiducials(Sensor):
             return
         for f in finders:
             f.seen = []
+            f.time = w.time
         marked = self._marked
         if not marked:
             return

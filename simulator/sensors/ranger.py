@@ -48,6 +48,17 @@ class Rangers(ReadingSensor):
         self._scan_out = np.zeros(0, dtype=np.float32)
         self._reduce: tuple[np.ndarray, np.ndarray] | None = None  # (first ray, ray count) per reading
 
+    @classmethod
+    def player_devices(cls, spec) -> list[tuple[str, int]]:
+        """``ranger:i`` per ranger, then Player's aliases: ``sonar:0`` (the first sonar ranger)
+        and ``laser:0`` (the first laser)."""
+        out = super().player_devices(spec)
+        if any(r.kind == "sonar" for r in spec.rangers):
+            out.append(("sonar", 0))
+        if any(r.kind != "sonar" for r in spec.rangers):
+            out.append(("laser", 0))
+        return out
+
     def specs(self, name: str) -> list[RangerSpec]:
         return list(self.devices.get(name, []))
 

@@ -1,13 +1,19 @@
 """Mapping of the devices mounted on a Stage position model to device specs.
 
 Stage 4 semantics (Stage manual; ``libstage/model_ranger.cc``, ``model_blobfinder.cc``,
-``model_gripper.cc``, read for meaning): a ``ranger`` holds ``sensor`` transducer groups
-(``range [min max]``, ``fov`` in degrees, ``samples``); Stage 3's ``laser`` is one sensor with
-``range_min``/``range_max``/``samples``, and its ``scount``/``spose[i]``/``sview`` sonar rings are read
-too. A ranger with one multi-sample sensor becomes :class:`RangerSpec` ``kind="laser"``, else
-``"sonar"``. ``blobfinder`` (``colors``, ``fov``/``ptz``, ``range``, ``image``) and ``gripper``
-(``size``, our ``paddle_time``/``lift_time``) map to their specs; plain ``model`` children (a plate,
-a laptop) are decoration, though devices mounted on them are found. Mount poses compose down the
+``model_gripper.cc``, ``model_bumper.cc``, ``model_fiducial.cc``, read for meaning): a
+``ranger`` holds ``sensor`` transducer groups (``range [min max]``, ``fov`` in degrees,
+``samples``); Stage 3's ``laser`` is one sensor with ``range_min``/``range_max``/``samples``,
+and its ``scount``/``spose[i]``/``sview`` sonar rings are read too. A ranger with one
+multi-sample sensor becomes :class:`RangerSpec` ``kind="laser"``, else ``"sonar"``.
+``blobfinder`` (``colors``, ``fov``/``ptz``, ``range``, ``image``) and ``gripper`` (``size``, our
+``paddle_time``/``lift_time``) map to their specs. A ``bumper`` is ``bcount`` segments, segment
+``i`` centred at ``bpose[i]`` ``[x y z a]`` (a in degrees; Stage 3's ``[x y a]`` too) and
+``blength[i]`` long (else ``blength``, else Stage's 0), lying across the direction it faces. A
+``fiducial`` finder reads ``range_min`` (0), ``range_max`` (8), ``range_max_id`` (5), ``fov``
+(degrees, 180) and its own ``fiducial_key`` (0): it sees models whose ``fiducial_return`` is
+non-zero and whose ``fiducial_key`` matches. Plain ``model`` children (a plate, a laptop) are
+decoration, though devices mounted on them are found. Mount poses compose down the
 tree; ``update_interval`` is in milliseconds.
 """
 
@@ -16,9 +22,21 @@ from __future__ import annotations
 import math
 
 from ..errors import WorldFileError
-from ..spec import BlobfinderSpec, GripperSpec, ModelSpec, RangerSensorSpec, RangerSpec, parse_color
+from ..spec import (
+    BlobfinderSpec,
+    BumperSegmentSpec,
+    BumperSpec,
+    FiducialSpec,
+    GripperSpec,
+    ModelSpec,
+    RangerSensorSpec,
+    RangerSpec,
+    parse_color,
+)
 from .keywords import (
     BLOBFINDER_KEYS,
+    BUMPER_KEYS,
+    FIDUCIAL_KEYS,
     GRIPPER_KEYS,
     LASER_KEYS,
     MODEL_KEYS,
@@ -30,7 +48,7 @@ from .keywords import (
 )  # fmt: skip
 from .macros import Inst
 from .syntax import INDEX_RE, Prop
-from .values import Pose, Reporter, bad, check, compose, integer, num, nums, parse_pose, parse_size, strings
+from .values import Pose, Reporter, bad, base_key, check, compose, integer, num, nums, parse_pose, parse_size, strings
 
 __all__ = ["DeviceMapping"]
 
@@ -49,6 +67,11 @@ class DeviceMapping(Reporter):
                 robot.blobfinders.append(self._blobfinder(c, robot, offset, counters))
             elif b == "gripper":
                 robot.grippers.append(self._gripper(c, robot, offset, counters))
+            elif b == "bumper":
+                if (bumper := self._bumper(c, robot, offset, counters)) is not None:
+                    robot.bumpers.append(bumper)
+            elif b == "fiducial":
+                robot.fiducials.append(self._fiducial(c, robot, offset, counters))
             elif b == "model":
                 # Decoration (a plate, a laptop): validated, not simulated; devices on it are found.
                 self.check_keys(c.props, MODEL_KEYS, f"model '{c.type_name}' on '{robot.name}'")
@@ -260,3 +283,63 @@ class DeviceMapping(Reporter):
                 check(v >= 0, p, "seconds >= 0", f"{key} 1.0")
                 setattr(g, key, v)
         return g
+
+    def _bumper(self, c: Inst, robot: ModelSpec, offset: Pose, counters: dict[str, int]) -> BumperSpec | None:
+        name = self._device_name(c, counters)
+        what = f"bumper '{c.type_name}' of '{robot.name}'"
+        P = c.props
+        self.check_keys(P, BUMPER_KEYS, what)
+        self.scope_not_simulated(P, NOT_SIMULATED_KEYS["bumper"])
+        count = 0
+        if (p := P.get("bcount")) is not None:
+            count = integer(p, "a number of segments >= 1", "bcount 5")
+            check(1 <= count <= 10_000, p, "a number of segments >= 1", "bcount 5")
+        if count == 0:
+            self.warn(c.tok, f"{what} has no segments; skipped (add bcount, bpose[i] and blength)")
+            return None
+        length = 0.0  # Stage reads a missing blength as 0
+        if (p := P.get("blength")) is not None:
+            length = num(p, "a length in metres >= 0", "blength 0.1")
+            check(length >= 0, p, "a length in metres >= 0", "blength 0.1")
+        example = "bpose[0] [ 0.17 0.12 0 45 ]"
+        segments: list[BumperSegmentSpec] = []
+        for i in range(count):
+            seg_pose: Pose = (0.0, 0.0, 0.0)  # Stage reads a missing bpose[i] as [0 0 0 0]
+            if (p := P.get(f"bpose[{i}]")) is not None:
+                v = nums(p, (3, 4), "[x y z a] (m, m, m, degrees)", example)
+                seg_pose = (v[0], v[1], math.radians(v[-1]))
+            else:
+                self.warn(c.tok, f"{what}: bcount is {count} but bpose[{i}] is missing; using [0 0 0 0]")
+            seg_len = length
+            if (p := P.get(f"blength[{i}]")) is not None:
+                seg_len = num(p, "a length in metres >= 0", f"blength[{i}] 0.1")
+                check(seg_len >= 0, p, "a length in metres >= 0", f"blength[{i}] 0.1")
+            segments.append(BumperSegmentSpec(seg_pose, seg_len))
+        if any(s.length == 0 for s in segments):
+            self.warn(c.tok, f"{what} has segments of length 0, which touch nothing; set blength 0.1 (metres)")
+        for key, p in P.items():
+            i = key.find("[")
+            if base_key(key) in ("bpose", "blength") and INDEX_RE.fullmatch(key[i:]) and int(key[i + 1 : -1]) >= count:
+                self.warn(p.tok, f"'{key}' ignored: bcount is {count}", key=("bpose", p.tok.file, p.tok.line))
+        return BumperSpec(name=name, pose=self._mount(c, offset), segments=segments, interval=self._interval(c, 0.1))
+
+    def _fiducial(self, c: Inst, robot: ModelSpec, offset: Pose, counters: dict[str, int]) -> FiducialSpec:
+        name = self._device_name(c, counters)
+        P = c.props
+        self.check_keys(P, FIDUCIAL_KEYS, f"fiducial '{c.type_name}' of '{robot.name}'")
+        self.scope_not_simulated(P, NOT_SIMULATED_KEYS["fiducial"])
+        self.mark_present("fiducial")
+        f = FiducialSpec(name=name, pose=self._mount(c, offset), interval=self._interval(c, 0.1))
+        for key in ("range_min", "range_max", "range_max_id"):
+            if (p := P.get(key)) is not None:
+                v = num(p, "a range in metres >= 0", f"{key} {getattr(f, key):g}")
+                check(v >= 0, p, "a range in metres >= 0", f"{key} {getattr(f, key):g}")
+                setattr(f, key, v)
+        if f.range_min > f.range_max:
+            p = P.get("range_min") or P["range_max"]
+            raise bad(p, "range_min <= range_max", "range_min 0 range_max 8")
+        f.fov = self._fov(P.get("fov"), 180.0)
+        if (p := P.get("fiducial_key")) is not None:
+            f.key = integer(p, "an integer key >= 0", "fiducial_key 1")
+            check(f.key >= 0, p, "an integer key >= 0", "fiducial_key 1")
+        return f

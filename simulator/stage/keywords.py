@@ -1,7 +1,8 @@
 """The Stage world-file vocabulary this loader knows: built-in model types and their keywords.
 
 Stage 4's model types and the keywords each reads (Stage manual, ``libstage/model.cc``,
-``model_position.cc``, ``model_ranger.cc``, ``world.cc``) are listed here once; the mapping
+``model_position.cc``, ``model_ranger.cc``, ``model_bumper.cc``, ``model_fiducial.cc``,
+``world.cc``) are listed here once; the mapping
 (:mod:`simulator.stage.mapping`) reads them to check a model's keywords ("did you mean") and to
 report what is recognised but not simulated. Adding a simulated model type or keyword starts here.
 """
@@ -11,11 +12,13 @@ from __future__ import annotations
 __all__ = [
     "BUILTIN_TYPES", "MODEL_TYPES", "NOT_SIMULATED", "SKIPPED", "DEVICE_TYPES", "KEYS_BY_TYPE", "MODEL_KEYS",
     "NOT_SIMULATED_KEYS", "BLOCK_KEYS", "POSITION_KEYS", "RANGER_KEYS", "LASER_KEYS", "SENSOR_KEYS",
-    "BLOBFINDER_KEYS", "GRIPPER_KEYS", "WORLD_KEYS",
+    "BLOBFINDER_KEYS", "GRIPPER_KEYS", "BUMPER_KEYS", "FIDUCIAL_KEYS", "WORLD_KEYS",
 ]  # fmt: skip
 
-MODEL_TYPES = frozenset({"model", "position", "ranger", "sensor", "laser", "blobfinder", "gripper"})
-NOT_SIMULATED = frozenset({"camera", "fiducial", "actuator", "bumper", "ptz"})
+MODEL_TYPES = frozenset(
+    {"model", "position", "ranger", "sensor", "laser", "blobfinder", "gripper", "bumper", "fiducial"}
+)
+NOT_SIMULATED = frozenset({"camera", "actuator", "ptz"})
 SKIPPED = frozenset({"window", "block"})  # the GUI window; block outlines are read by the mapping
 BUILTIN_TYPES = MODEL_TYPES | NOT_SIMULATED | SKIPPED
 
@@ -46,6 +49,8 @@ BLOBFINDER_KEYS = MODEL_KEYS | {
 GRIPPER_KEYS = MODEL_KEYS | {
     "paddle_time", "lift_time", "paddle_size", "paddle_state", "lift_state", "autosnatch",
 }  # fmt: skip
+BUMPER_KEYS = MODEL_KEYS | {"bcount", "bpose", "blength"}
+FIDUCIAL_KEYS = MODEL_KEYS | {"range_min", "range_max", "range_max_id", "fov"}
 WORLD_KEYS = frozenset(
     {
         "name", "resolution", "interval_sim", "interval_real", "speedup", "quit_time", "threads",
@@ -60,18 +65,21 @@ KEYS_BY_TYPE = {
     "sensor": SENSOR_KEYS,
     "blobfinder": BLOBFINDER_KEYS,
     "gripper": GRIPPER_KEYS,
+    "bumper": BUMPER_KEYS,
+    "fiducial": FIDUCIAL_KEYS,
 }
-DEVICE_TYPES = frozenset({"ranger", "laser", "blobfinder", "gripper"})
+DEVICE_TYPES = frozenset({"ranger", "laser", "blobfinder", "gripper", "bumper", "fiducial"})
 BLOCK_KEYS = frozenset({"points", "point", "z", "color", "color_rgba"})
 
 # Keywords that are known (no "unknown keyword" warning) but not simulated: each occurrence is
 # listed, with its file:line, in the one "not simulated (ignored)" warning of a load. By scope:
-# "world", a model's built-in type, or "floorplan". Bumper and fiducial models and the fiducial
-# keywords are listed until the simulator's sensor plug-ins provide them; then remove them here and
-# map them in devices.py / mapping.py.
+# "world", a model's built-in type, or "floorplan". A model's fiducial_return / fiducial_key are
+# simulated on top-level models (robots and objects) and on fiducial finders (the key); on other
+# devices and the floorplan they are listed here.
+_DEVICE_FIDUCIAL = frozenset({"fiducial_return", "fiducial_key"})
 _MODEL_NOT_SIMULATED = frozenset(
     {
-        "fiducial_return", "fiducial_key", "watts", "stack_children", "update_interval", "polygons",
+        "watts", "stack_children", "update_interval", "polygons",
         "polygon.points", "polygon.point", "polygon.filled", "velocity", "friction", "alwayson", "joules",
         "joules_capacity", "kjoules", "give_watts", "take_watts", "line_count", "line.points", "line.point",
         "boundary", "ctrl",
@@ -80,7 +88,7 @@ _MODEL_NOT_SIMULATED = frozenset(
 NOT_SIMULATED_KEYS: dict[str, frozenset[str]] = {
     "world": frozenset({"paused", "size", "log"}),
     "model": _MODEL_NOT_SIMULATED,
-    "floorplan": _MODEL_NOT_SIMULATED - {"boundary"},
+    "floorplan": (_MODEL_NOT_SIMULATED - {"boundary"}) | _DEVICE_FIDUCIAL,
     "position": (_MODEL_NOT_SIMULATED - {"ctrl", "update_interval"})
     | {"localization_origin", "wheelbase", "velocity_enable"},
     "ranger": frozenset({"fiducial_return", "fiducial_key", "watts"}),
@@ -89,6 +97,8 @@ NOT_SIMULATED_KEYS: dict[str, frozenset[str]] = {
     "blobfinder": frozenset({"fiducial_return", "fiducial_key", "watts", "pan"}),
     "gripper": frozenset({"fiducial_return", "fiducial_key", "watts", "paddle_size", "paddle_state", "lift_state",
                           "autosnatch"}),
+    "bumper": _DEVICE_FIDUCIAL | {"watts"},
+    "fiducial": frozenset({"fiducial_return", "watts"}),
 }  # fmt: skip
 """Known keywords without a simulated meaning yet, by scope. Keywords that only change the GUI
 (``gui_*``, ``say``, ``debug``, ``show_clock``, a device's ``size``/``color``) and ``threads`` (the

@@ -195,6 +195,11 @@ class Mapper(DeviceMapping):
         for key in ("obstacle_return", "blob_return", "gripper_return"):
             if (p := P.get(key)) is not None:
                 setattr(m, key, boolean(p))
+        for key in ("fiducial_return", "fiducial_key"):  # Stage: ints; fiducial finders see return != 0
+            if (p := P.get(key)) is not None:
+                v = integer(p, "an integer id >= 0 (0: not seen by fiducial finders)", f"{key} 1")
+                check(v >= 0, p, "an integer id >= 0 (0: not seen by fiducial finders)", f"{key} 1")
+                setattr(m, key, v)
         if (p := P.get("origin")) is not None and "bitmap" not in P:
             m.origin = parse_pose(p)
         m.blocks = self._blocks(inst)

@@ -150,6 +150,10 @@ class Reporter:
                 self._present.add("power")
         self._unsimulated.setdefault((what, tok.file, tok.line), (f"{what} at {where(tok)}", needs))
 
+    def mark_present(self, what: str) -> None:
+        """A simulated model that keywords of :data:`_NEEDS` act through (``"fiducial"``) exists."""
+        self._present.add(what)
+
     def report_not_simulated(self, display: str) -> None:
         """The one warning naming everything a load recognised but does not simulate."""
         entries = [e for e, needs in self._unsimulated.values() if not needs or needs in self._present]

@@ -8,7 +8,7 @@ import threading
 
 import zenoh
 
-from mrs_bridge.config import parse_config
+from mrs_bridge.config import ServerConfig, parse_config
 from mrs_bridge.driver import Driver
 from mrs_bridge.server import DeviceServer
 from rsal.transport import TransportArgs, open_session
@@ -23,19 +23,25 @@ class LiveServer:
 
     def __init__(
         self,
-        config_text: str,
+        config_text: str | ServerConfig,
         *,
         port: int,
         connect: tuple[int, ...] = (),
         drivers: dict[str, type[Driver]] | None = None,
         require_timeout: float = 30.0,
         source: str = "test.toml",
+        shared: dict | None = None,
     ):
-        self.config = parse_config(textwrap.dedent(config_text), source=source)
+        if isinstance(config_text, ServerConfig):
+            self.config = config_text
+        else:
+            self.config = parse_config(textwrap.dedent(config_text), source=source)
         self.session: zenoh.Session = open_session(
             TransportArgs(listen=[loopback(port)], connect=[loopback(p) for p in connect])
         )
-        self.server = DeviceServer(self.config, self.session, require_timeout=require_timeout, drivers=drivers)
+        self.server = DeviceServer(
+            self.config, self.session, require_timeout=require_timeout, drivers=drivers, shared=shared
+        )
         self.thread: threading.Thread | None = None
         self.error: BaseException | None = None
         self._closed = False

@@ -1,4 +1,4 @@
-"""``rsal watch`` (rsal/watch.py): the pure conversions, the latest-wins logger against an in-memory
+"""``rsal watch`` (rsal/watch/): the pure conversions, the latest-wins logger against an in-memory
 recording, and the command as a real process against ``rsal sim`` whose ``.rrd`` file is read back."""
 
 from __future__ import annotations
@@ -14,6 +14,9 @@ import numpy as np
 import pytest
 from conftest import MAPS, free_port, rsal_cmd, wait_until
 
+from rsal import interfaces
+from rsal.interfaces.bumper import BumperData
+from rsal.interfaces.fiducial import FiducialData, FiducialItem
 from rsal.keys import DeviceAddr
 from rsal.msgs import Position2dData, RangerData, encode
 from rsal.watch import (
@@ -21,12 +24,14 @@ from rsal.watch import (
     WatchOptions,
     beam_layout,
     cov_ellipse,
+    draw,
     ellipse_points,
     footprint,
     map_image,
     map_transform,
     scan_to_world,
 )
+from rsal.watch.convert import RED
 
 LASER_GEO = {  # r0:laser:0 of maps/testroom.world: a URG 0.13 m ahead of the centre
     "kind": "laser",
@@ -172,6 +177,78 @@ def test_scans_are_downsampled_and_placed_from_the_robot_pose():
     assert len([p for p, _, _ in rec.logs if p == "world/robots/r0/laser"]) == 1 and w.stats.downsampled == 1
 
 
+BUMPER_GEO = {  # two front segments 0.1 m long, facing forward, left and right of the axis
+    "pose": [0.0, 0.0, 0.0],
+    "segments": [{"pose": [0.25, 0.05, 0.0], "length": 0.1}, {"pose": [0.25, -0.05, 0.0], "length": 0.1}],
+}
+FIDUCIAL_GEO = {"pose": [0.1, 0.0, 0.0], "fov": math.pi, "range_min": 0.0, "range_max": 8.0, "range_max_id": 5.0}
+
+
+def _located_watcher(rec, **opts) -> Watcher:
+    """A watcher that knows r0 at (1, 2) facing +y from its localized position2d."""
+    w = Watcher(session=None, rec=rec, opts=WatchOptions(**opts))
+    w._on_data(_sample("rsal/r0/position2d/2/data", Position2dData(0.0, (1.0, 2.0, math.pi / 2), (0.0, 0.0, 0.0))))
+    w.tick()
+    return w
+
+
+def test_bumper_segments_are_drawn_in_the_robot_frame_red_while_pressed():
+    rec = FakeRec()
+    w = _located_watcher(rec)
+    addr = DeviceAddr("r0", "bumper", 0)
+    w._alive.add(addr)
+    w._geometry[addr] = BUMPER_GEO
+    path = "world/robots/r0/pose/bumper"  # under the localized footprint: moves with the robot
+    w._on_data(_sample("rsal/r0/bumper/0/data", BumperData(0.1, (0, 1))))
+    w.tick()
+    (strips,) = [a for p, _, a in rec.logs if p == path]
+    ends = strips.strips.as_arrow_array().to_pylist()
+    # each segment lies across its facing (+x), centred at its pose, in the robot frame
+    assert np.allclose(ends, [[[0.25, 0.0], [0.25, 0.1]], [[0.25, -0.1], [0.25, 0.0]]])
+    colors = strips.colors.as_arrow_array().to_pylist()
+    assert colors[1] == RED and colors[0] != RED
+    w._on_data(_sample("rsal/r0/bumper/0/data", BumperData(0.2, (0, 1))))
+    w.tick()  # the same contacts: nothing logged again
+    assert len([p for p, _, _ in rec.logs if p == path]) == 1
+    w._on_data(_sample("rsal/r0/bumper/0/data", BumperData(0.3, (0, 0))))
+    w.tick()
+    last = [a for p, _, a in rec.logs if p == path][-1]
+    assert RED not in last.colors.as_arrow_array().to_pylist()
+    # data that does not fit the geometry is counted and dropped, not drawn
+    w._on_data(_sample("rsal/r0/bumper/0/data", BumperData(0.4, (1, 1, 1))))
+    w.tick()
+    assert w.stats.malformed == 1 and len([p for p, _, _ in rec.logs if p == path]) == 2
+
+
+def test_fiducials_are_lines_from_the_finder_labelled_with_their_ids():
+    rec = FakeRec()
+    w = _located_watcher(rec)
+    addr = DeviceAddr("r0", "fiducial", 0)
+    w._alive.add(addr)
+    w._geometry[addr] = FIDUCIAL_GEO
+    seen = FiducialData(0.1, [FiducialItem.at(7, (1.0, 1.0, 0.0)), FiducialItem.at(-1, (2.0, 0.0, 0.0))])
+    w._on_data(_sample("rsal/r0/fiducial/0/data", seen))
+    w.tick()
+    path = "world/robots/r0/pose/fiducial"
+    (lines,) = [a for p, _, a in rec.logs if p == path]
+    # from the finder (0.1 m ahead of the centre) to each marker, robot frame; an unread id is "?"
+    assert np.allclose(lines.strips.as_arrow_array().to_pylist(), [[[0.1, 0.0], [1.1, 1.0]], [[0.1, 0.0], [2.1, 0.0]]])
+    assert lines.labels.as_arrow_array().to_pylist() == ["#7", "?"]
+    w._on_data(_sample("rsal/r0/fiducial/0/data", FiducialData(0.2, [])))
+    w.tick()  # nothing in view: the lines are cleared
+    assert [k for p, k, _ in rec.logs if p == path] == ["LineStrips2D", "Clear"]
+
+
+def test_every_interface_has_a_view_hook_from_the_registry():
+    for name in interfaces.names():
+        assert callable(draw.hook(name))
+    drawn = {n for n in interfaces.names() if draw.hook(n) is not draw.draw_summary}
+    assert {"position2d", "laser", "sonar", "ranger", "bumper", "fiducial", "planner", "blobfinder"} <= drawn
+    assert draw.hook("dio") is draw.draw_summary  # not drawn: its summary text is logged
+    with pytest.raises(RuntimeError, match="'bumpr' is not an interface"):
+        draw.draws("bumpr")(lambda w, a, m: None)
+
+
 def test_service_messages_become_text_log_entries():
     rec = FakeRec()
     w = Watcher(session=None, rec=rec, opts=WatchOptions())
@@ -243,6 +320,37 @@ def test_watch_records_map_robot_laser_path_and_services(procs, tmp_path):
     ):
         assert rows[path] > 0, f"{path} missing from {sorted(rows)}"
     assert rows["world/robots/r0/laser"] >= 20  # ~5 scans/s for most of 40 s
+
+
+CONTACT_WORLD = """\
+interval_sim 100
+position
+(
+  name "r0"
+  size [ 0.44 0.38 0.22 ]
+  bumper( bcount 2 blength 0.15 bpose[0] [ 0.235 0.08 0 0 ] bpose[1] [ 0.235 -0.08 0 0 ] )
+  fiducial( range_max 6 fov 180 )
+)
+model( name "box" pose [ 0.40 0 0 0 ] size [ 0.3 0.3 0.3 ] mass 1000 )
+model( name "beacon" pose [ 2 1.5 0 0 ] size [ 0.1 0.1 0.1 ] obstacle_return 0 fiducial_return 3 )
+"""
+
+
+def test_a_stage_worlds_bumper_and_fiducial_reach_the_live_view(procs, tmp_path):
+    """End to end: Stage world file -> simulator -> rsal sim's devices -> rsal watch -> .rrd."""
+    world = tmp_path / "contact.world"
+    world.write_text(CONTACT_WORLD)
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    sim = procs(rsal_cmd("sim", str(world), "--listen", ep))
+    wait_until(lambda: "device(s) up" in sim.output() or not sim.alive(), 90, "rsal sim to serve")
+    assert "not simulated" not in sim.output(), sim.output()
+    out = tmp_path / "contact.rrd"
+    watch = procs(rsal_cmd("watch", "--save", str(out), "--duration", "8", "--wait", "60", "--connect", ep))
+    wait_until(lambda: not watch.alive(), 90, "watch to stop after --duration")
+    assert watch.p.returncode == 0, watch.output()
+    rows = _read_rrd(out)
+    for path in ("world/robots/r0/truth/bumper", "world/robots/r0/truth/fiducial"):
+        assert rows[path] > 0, f"{path} missing from {sorted(rows)}"
 
 
 @pytest.mark.timeout(120)

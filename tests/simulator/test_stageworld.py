@@ -282,12 +282,13 @@ def test_unknown_world_keyword_warns(tmp_path):
 
 
 def test_not_simulated_devices_warn(tmp_path):
-    text = 'position\n(\n  name "r0"\n  camera ( )\n  fiducial ( )\n  actuator ( )\n)\n'
+    text = 'position\n(\n  name "r0"\n  camera ( )\n  ptz ( )\n  actuator ( )\n)\n'
     p = write(tmp_path / "w.world", text)
     spec = load_stage_world(p)
-    # One warning names every model type that is not simulated, each with its line.
+    # One warning names every model type that is not simulated, each with its line (fiducial
+    # finders and bumpers are simulated: tests/simulator/test_stage_bumper_fiducial.py).
     assert spec.warnings == [
-        f"{p}: not simulated (ignored): model type 'camera' at {p}:4, model type 'fiducial' at {p}:5, "
+        f"{p}: not simulated (ignored): model type 'camera' at {p}:4, model type 'ptz' at {p}:5, "
         f"model type 'actuator' at {p}:6"
     ]
     assert len(spec.robots()) == 1
