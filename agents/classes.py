@@ -10,7 +10,7 @@ robot was created; given a start ``pose`` ([x, y, degrees], thesis 3.5) or ``sim
 true start pose read from the simulation device), the agent sets the odometry to it and reports in
 the ``map`` frame. :class:`EscapeAgent`, the prey of Hunt and Prey, spins in place once a hunter
 reports it caught. Subclasses that drive another kind of robot override ``make_robot`` and ``needs``
-(e.g. :class:`agents.hunt.NavAgent`).
+(e.g. :class:`agents.scenarios.hunt.NavAgent`).
 
 Device discovery and ``describe`` block; they run in a worker thread with ``asyncio.to_thread`` so
 the host's loop keeps serving its other agents. The robot's own 100 ms control cycle runs on the

@@ -11,21 +11,31 @@ import importlib
 
 from rsal.errors import RsalError
 
-__all__ = ["CLASS_MODULES", "AgentClassError", "known_classes", "resolve"]
+__all__ = ["CLASS_MODULES", "MOVED_MODULES", "AgentClassError", "known_classes", "resolve"]
 
 #: registered class name -> the module that defines it
 CLASS_MODULES: dict[str, str] = {
     "WallfollowAgent": "agents.classes",
     "EscapeAgent": "agents.classes",
-    "NavAgent": "agents.hunt",
-    "FollowAgent": "agents.hunt",
-    "ExploreAgent": "agents.collect",
-    "CollectAgent": "agents.collect",
-    "MasterAgent": "agents.collect",
-    "SwarmAgent": "agents.swarm",
-    "SwarmMonitor": "agents.swarm",
-    "DispersionAgent": "agents.distribution",
-    "ViewAgent": "agents.mixed",
+    "NavAgent": "agents.scenarios.hunt.agents",
+    "FollowAgent": "agents.scenarios.hunt.agents",
+    "ExploreAgent": "agents.scenarios.collect.collector",
+    "CollectAgent": "agents.scenarios.collect.collector",
+    "MasterAgent": "agents.scenarios.collect.collector",
+    "SwarmAgent": "agents.scenarios.swarm.agents",
+    "SwarmMonitor": "agents.scenarios.swarm.agents",
+    "DispersionAgent": "agents.scenarios.distribution.agents",
+    "ViewAgent": "agents.scenarios.mixed.agents",
+}
+
+#: modules that scenario files named before the scenarios moved to ``agents.scenarios`` -> the package
+#: that now holds their classes (``agents.hunt:FollowAgent`` keeps working)
+MOVED_MODULES: dict[str, str] = {
+    "agents.hunt": "agents.scenarios.hunt",
+    "agents.collect": "agents.scenarios.collect",
+    "agents.swarm": "agents.scenarios.swarm",
+    "agents.distribution": "agents.scenarios.distribution",
+    "agents.mixed": "agents.scenarios.mixed",
 }
 
 
@@ -51,6 +61,7 @@ def resolve(name: str) -> type:
 
     if ":" in name:
         mod_name, _, cls_name = name.partition(":")
+        mod_name = MOVED_MODULES.get(mod_name, mod_name)
     else:
         mod_name, cls_name = CLASS_MODULES.get(name, ""), name
         if not mod_name:

@@ -1,8 +1,8 @@
 """Swarm: N robots and N agents broadcasting positions at 2 Hz (thesis 4.2.3, "100 robots").
 
 For each N of ``--robots``: ``rsal sim`` runs a crowd of N sonar Pioneers in the 128 m arena
-(:func:`agents.swarm.crowd_world`) in one process; one agent host process runs N
-:class:`agents.swarm.SwarmAgent` (one Zenoh session, one shared control thread, one shared
+(:func:`agents.scenarios.swarm.crowd_world`) in one process; one agent host process runs N
+:class:`agents.scenarios.swarm.SwarmAgent` (one Zenoh session, one shared control thread, one shared
 ``send_position`` subscriber), each wall-following/dispersing its robot and broadcasting its pose
 every 0.5 s while every agent receives every other's. After ``--warmup`` seconds the figures are
 taken over ``--seconds`` wall seconds; then the broadcasts stop and every receiver's count from
@@ -49,8 +49,8 @@ def _cpu_seconds(pid: int) -> float:
 
 async def _host(args) -> dict:
     from agents.runtime import AgentHost
+    from agents.scenarios.swarm.agents import LatencyHistogram, SwarmAgent, _Hub
     from agents.services import SendPosition
-    from agents.swarm import LatencyHistogram, SwarmAgent, _Hub
     from rsal.client import Fabric
     from rsal.transport import TransportArgs
 
@@ -182,7 +182,7 @@ def _line(r: dict) -> str:
 
 
 def run(args) -> None:
-    from agents.swarm import write_crowd_world
+    from agents.scenarios.swarm.agents import write_crowd_world
 
     largest = None
     for n in args.robot_list:

@@ -20,9 +20,9 @@ import time
 import pytest
 
 from agents.classes import EscapeAgent
-from agents.hunt import FollowAgent, NavAgent
 from agents.registry import resolve
 from agents.runtime import Agent, AgentHost
+from agents.scenarios.hunt import FollowAgent, NavAgent
 from agents.services import NewGoal, Outcome
 from rsal.robot import RobotError
 from rsal.transport import TransportArgs, open_session

@@ -20,8 +20,7 @@ import numpy as np
 import pytest
 
 from agents.runtime import AgentHost
-from agents.services import Message, Outcome, SendPosition
-from agents.swarm import (
+from agents.scenarios.swarm.agents import (
     LATENCY_EDGES,
     Disperse,
     LatencyHistogram,
@@ -33,6 +32,7 @@ from agents.swarm import (
     fuse_beams,
     write_crowd_world,
 )
+from agents.services import Message, Outcome, SendPosition
 from rsal.behaviours import Sectors, beam_points, fuse
 from rsal.data import Position
 from rsal.transport import TransportArgs

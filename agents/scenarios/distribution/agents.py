@@ -40,13 +40,12 @@ from dataclasses import dataclass
 import numpy as np
 import zenoh
 
+from agents.runtime import Agent
+from agents.services import Message, NewGoal, Outcome, SendPosition, match
 from rsal.client import Fabric
 from rsal.clock import clock, wait_for
 from rsal.data import Board, BoardObject, Position
 from rsal.msgs import MapData
-
-from .runtime import Agent
-from .services import Message, NewGoal, Outcome, SendPosition, match
 
 __all__ = ["DispersionAgent", "Targets", "assign", "target_points"]
 

@@ -32,17 +32,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from agents.classes import RobotAgent, WallfollowAgent
+from agents.contractnet import Initiator, Participant
+from agents.runtime import Agent
+from agents.services import Hello, Message, Outcome, SendPosition, match
 from rsal.client import Fabric
 from rsal.clock import clock, wait_for
 from rsal.data import BlobfinderBlob, Board, BoardObject, Position, normalize_angle
 from rsal.devices import Simulation
 from rsal.msgs import MapData, MessageError, RpcError, get_float, get_int, get_str
 from rsal.robot import ExploreRobot, NavRobot, Robot
-
-from .classes import RobotAgent, WallfollowAgent
-from .contractnet import Initiator, Participant
-from .runtime import Agent
-from .services import Hello, Message, Outcome, SendPosition, match
 
 __all__ = [
     "BLOB",

@@ -33,14 +33,13 @@ import math
 import time
 from dataclasses import dataclass
 
+from agents.classes import RobotAgent
+from agents.contractnet import Initiator, Participant
+from agents.services import Hello, Message, NewGoal, Outcome, SendPosition, match
 from rsal.clock import clock, wait_for
 from rsal.data import Position
 from rsal.msgs import ErrorCode, RpcError
 from rsal.robot import NavRobot, RobotError
-
-from .classes import RobotAgent
-from .contractnet import Initiator, Participant
-from .services import Hello, Message, NewGoal, Outcome, SendPosition, match
 
 __all__ = ["FollowAgent", "GoalResult", "NavAgent"]
 

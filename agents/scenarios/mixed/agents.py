@@ -30,12 +30,11 @@ import time
 from collections.abc import Mapping, Sequence
 from concurrent.futures import Future
 
+from agents.runtime import Agent
+from agents.services import Message, SendPosition
 from rsal.client import Fabric
 from rsal.keys import DeviceAddr, parse_device
 from rsal.msgs import RpcError
-
-from .runtime import Agent
-from .services import Message, SendPosition
 
 __all__ = ["ViewAgent"]
 

@@ -43,15 +43,14 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.classes import RobotAgent
+from agents.runtime import Agent, AgentHost
+from agents.services import Message, Outcome, SendPosition, Subscription
 from rsal.behaviours import SECTOR_COUNT, Sectors, Subsumption, beam_points, fuse
 from rsal.client import HOLD_REFRESH, Fabric
 from rsal.data import Board, BoardObject, Position, normalize_angle
 from rsal.msgs import RpcError
 from rsal.robot import Pioneer, RobotError
-
-from .classes import RobotAgent
-from .runtime import Agent, AgentHost
-from .services import Message, Outcome, SendPosition, Subscription
 
 __all__ = [
     "LATENCY_EDGES",
@@ -868,7 +867,7 @@ def crowd_world(
     colors = ("red", "blue", "yellow", "green", "orange", "cyan", "magenta", "gray")
     lines = [
         f"# RSAL fabric -- a crowd of {n} Pioneers for the Swarm scenario (thesis 4.2.3), written by",
-        "# agents.swarm.crowd_world: the 128 m arena, robots on a square grid around its free centre,",
+        "# agents.scenarios.swarm.crowd_world: the 128 m arena, robots on a square grid around its centre,",
         f"# {spacing:g} m apart, random headings (seed {seed}). Each is a Pioneer 2DX with its 8-sonar ring",
         "# (the light sensor model: no laser). Stage 4 syntax; original to this project.",
         "",
@@ -902,6 +901,6 @@ def crowd_world(
 def write_crowd_world(path: str | Path, n: int, **kw) -> Path:
     """Write :func:`crowd_world` to ``path`` with the arena bitmap referenced by absolute path."""
     p = Path(path)
-    arena = Path(__file__).resolve().parent.parent / "maps" / "arena.png"
+    arena = Path(__file__).resolve().parents[3] / "maps" / "arena.png"
     p.write_text(crowd_world(n, bitmap=str(arena), **kw))
     return p
