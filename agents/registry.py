@@ -16,8 +16,8 @@ __all__ = ["CLASS_MODULES", "MOVED_MODULES", "AgentClassError", "known_classes",
 #: registered class name -> the module that defines it
 CLASS_MODULES: dict[str, str] = {
     "WallfollowAgent": "agents.classes",
-    "EscapeAgent": "agents.classes",
-    "NavAgent": "agents.scenarios.hunt.agents",
+    "EscapeAgent": "agents.scenarios.hunt.agents",
+    "NavAgent": "agents.navigation",
     "FollowAgent": "agents.scenarios.hunt.agents",
     "ExploreAgent": "agents.scenarios.collect.collector",
     "CollectAgent": "agents.scenarios.collect.collector",
