@@ -23,7 +23,7 @@ CLASS_MODULES: dict[str, str] = {
     "CollectAgent": "agents.scenarios.collect.collector",
     "MasterAgent": "agents.scenarios.collect.collector",
     "SwarmAgent": "agents.scenarios.swarm.agents",
-    "SwarmMonitor": "agents.scenarios.swarm.agents",
+    "SwarmMonitor": "agents.scenarios.swarm.monitor",
     "DispersionAgent": "agents.scenarios.distribution.agents",
     "ViewAgent": "agents.scenarios.mixed.agents",
 }

@@ -1,4 +1,4 @@
-"""The Swarm scenario (thesis 4.2.3): a crowd of wall-following robots that broadcast their positions.
+"""The Swarm scenario's robots (thesis 4.2.3): wall-following Pioneers that broadcast their positions.
 
 "It includes 100 robots that spread out from their closely spaced starting positions and explore the
 map by wall-following. Low-level obstacle avoidance guides each robot to avoid collisions. In order
@@ -6,29 +6,18 @@ to stress the MAS layer, each robot subscribes to the SendPositionService, broad
 position and reads other position values."
 
 :class:`SwarmAgent` drives one Pioneer with the subsumption behaviour of 3.6.2.4 (wall-following,
-avoid, escape), publishes its pose on ``send_position`` every ``report_every`` seconds (2 Hz by
-default) and keeps every other robot's latest pose on a :class:`rsal.data.Board`. It measures what
-it receives: each broadcast's conversation id is ``p<sequence number>``, so a receiver counts the
-gaps per sender (delivery ratio), and the receive wall time minus the message's ``time`` is the
-latency (a log-scale histogram). It publishes these figures on the ``swarm_stats`` service.
+avoid, escape) and one more layer for open space (:class:`Disperse`), publishes its pose on
+``send_position`` every ``report_every`` seconds (2 Hz by default) and keeps every other robot's
+latest pose on a :class:`rsal.data.Board`. It measures what it receives (:mod:`.metrics`: delivery
+per sender from the broadcasts' sequence numbers, latency histogram) and publishes these figures on
+the ``swarm_stats`` service (:mod:`.messages`).
 
-Agents of one host share the costly parts (the scaling the thesis's Jadex platform did not have):
-one Fabric and one DeviceNode to find all robots, one control loop on the host's asyncio loop that
-runs every robot's behaviour cycle in turn (in slices, serving messages in between) instead of a
-thread per robot, and one Zenoh subscriber on ``send_position`` whose messages are decoded once, put
-once on the host's blackboard (all its agents receive the same messages) and handed to each agent
-on the loop for its own accounting (SPADE's local delivery short-cut). ``shared=False`` gives an
-agent its own subscription and blackboard instead. The shared Fabric runs its device callbacks on
-Zenoh's network threads (``direct_callbacks``), not on a Python thread per subscription: with 200
-robots that is 800 fewer threads contending for the GIL with the control loop.
-
-:class:`SwarmMonitor` judges a run from the simulation's ground truth: every ``sample_every``
-seconds it asks the ``simulation`` device for every robot's true pose, checks that no two robots
-overlap, follows the spread (mean nearest-neighbour distance), merges the agents' ``swarm_stats``
-and after ``duration`` simulated seconds publishes the verdict as an ``outcome``.
-
-:func:`crowd_world` writes the Stage world of such a crowd (``maps/swarm.world`` is its output for
-100 robots).
+Agents of one host share the costly parts through the host's :class:`agents.hub.RobotHub`: one
+Fabric and one DeviceNode to find all robots, one control loop on the host's asyncio loop that runs
+every robot's behaviour cycle in turn instead of a thread per robot, and one Zenoh subscriber on
+``send_position`` whose messages are decoded once, put once on the host's blackboard and accounted
+for each agent on the loop. ``shared=False`` gives an agent its own subscription and blackboard.
+The run's judge is :class:`.monitor.SwarmMonitor`, its world :func:`.world.crowd_world`.
 """
 
 from __future__ import annotations
@@ -39,118 +28,23 @@ import math
 import random
 import time
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 
 from agents.classes import RobotAgent
-from agents.runtime import Agent, AgentHost
-from agents.services import Message, Outcome, SendPosition, Subscription
-from rsal.behaviours import SECTOR_COUNT, Sectors, Subsumption, beam_points, fuse
-from rsal.client import HOLD_REFRESH, Fabric
+from agents.hub import RobotHub
+from agents.services import Message, SendPosition
+from rsal.behaviours import Sectors, Subsumption
 from rsal.data import Board, BoardObject, Position, normalize_angle
 from rsal.msgs import RpcError
 from rsal.robot import Pioneer, RobotError
 
-__all__ = [
-    "LATENCY_EDGES",
-    "STATS_SERVICE",
-    "LatencyHistogram",
-    "SwarmAgent",
-    "SwarmMonitor",
-    "crowd_world",
-]
+from .messages import STATS_SERVICE
+from .metrics import LatencyHistogram, latency_bin, sequence
+
+__all__ = ["Disperse", "SwarmAgent", "SwarmPioneer", "away_from"]
 
 log = logging.getLogger(__name__)
-
-STATS_SERVICE = "swarm_stats"
-
-#: latency histogram bin edges in seconds: 10 µs .. 100 s, 10 bins per decade (bin i is [e_i, e_i+1))
-LATENCY_EDGES = 10.0 ** (np.arange(71) / 10.0 - 5.0)
-_NBINS = LATENCY_EDGES.size - 1
-
-
-def latency_bin(latency: float) -> int:
-    """The bin of :data:`LATENCY_EDGES` that ``latency`` (seconds) falls in (clamped)."""
-    if latency <= 1e-5:
-        return 0
-    i = int((math.log10(latency) + 5.0) * 10.0)
-    return i if i < _NBINS else _NBINS - 1
-
-
-def sequence(conversation: str) -> int | None:
-    """The sequence number of a swarm broadcast's conversation id ``p<n>``, else None."""
-    if len(conversation) > 1 and conversation[0] == "p" and conversation[1:].isdigit():
-        return int(conversation[1:])
-    return None
-
-
-class LatencyHistogram:
-    """Counts of latencies in the bins of :data:`LATENCY_EDGES`, mergeable across agents."""
-
-    def __init__(self, counts: Sequence[int] | None = None, *, max_s: float = 0.0, sum_s: float = 0.0):
-        self.counts = np.zeros(_NBINS, dtype=np.int64) if counts is None else np.asarray(counts, dtype=np.int64)
-        if self.counts.shape != (_NBINS,):
-            raise ValueError(f"a latency histogram has {_NBINS} bins, got {self.counts.shape}")
-        self.max_s = float(max_s)
-        self.sum_s = float(sum_s)
-        self._pending = [0] * _NBINS  # counts not yet in ``counts`` (a list is faster to bump)
-        self._npending = 0
-
-    def add(self, latency: float) -> None:
-        self.add_bin(latency_bin(latency), latency)
-
-    def add_bin(self, i: int, latency: float) -> None:
-        """Count a latency whose bin :func:`latency_bin` gave (shared by the agents of a host)."""
-        self._pending[i] += 1
-        self._npending += 1
-        if latency > self.max_s:
-            self.max_s = latency
-        self.sum_s += latency
-
-    def _flush(self) -> None:
-        if self._npending:
-            self.counts += np.asarray(self._pending, dtype=np.int64)
-            self._pending = [0] * _NBINS
-            self._npending = 0
-
-    def merge(self, other: LatencyHistogram) -> None:
-        self._flush()
-        other._flush()
-        self.counts += other.counts
-        self.max_s = max(self.max_s, other.max_s)
-        self.sum_s += other.sum_s
-
-    @property
-    def n(self) -> int:
-        self._flush()
-        return int(self.counts.sum())
-
-    def quantile(self, q: float) -> float:
-        """The upper edge of the bin holding quantile ``q`` (seconds; an upper bound within 26 %)."""
-        n = self.n
-        if n == 0:
-            return math.nan
-        self._flush()
-        i = int(np.searchsorted(np.cumsum(self.counts), q * n, side="left"))
-        return min(float(LATENCY_EDGES[min(i, _NBINS - 1) + 1]), self.max_s)
-
-    def to_dict(self) -> dict:
-        self._flush()
-        nz = np.nonzero(self.counts)[0]
-        return {"bins": nz.tolist(), "counts": self.counts[nz].tolist(), "max": self.max_s, "sum": self.sum_s}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> LatencyHistogram:
-        h = cls(max_s=float(d.get("max", 0.0)), sum_s=float(d.get("sum", 0.0)))
-        bins, counts = d.get("bins", []), d.get("counts", [])
-        if len(bins) != len(counts):
-            raise ValueError("latency histogram: 'bins' and 'counts' differ in length")
-        for i, c in zip(bins, counts, strict=True):
-            if not (isinstance(i, int) and 0 <= i < _NBINS and isinstance(c, int) and c >= 0):
-                raise ValueError(f"latency histogram: bad bin {i!r} or count {c!r}")
-            h.counts[i] += c
-        return h
 
 
 # ---------------------------------------------------------------------------- behaviour
@@ -188,123 +82,19 @@ class Disperse(Subsumption):
         return p.cruise_speed * (1.0 if abs(err) < 0.8 else 0.4), w
 
 
-class ListSectors(Sectors):
-    """:class:`rsal.behaviours.Sectors` over a plain list: for a handful of beams, Python's own
-    arithmetic beats numpy's per-call overhead (the behaviour reads a sector range 7 times a cycle)."""
-
-    def __init__(self, dist: list[float]):
-        self.dist = dist  # a list here, not an array
-
-    def min_between(self, a0_deg: float, a1_deg: float) -> float:
-        i0 = math.floor((a0_deg + _HALF_SECTOR) / _SECTOR)
-        n = math.floor((a1_deg + _HALF_SECTOR) / _SECTOR) - i0 + 1
-        v = self.dist
-        if n >= SECTOR_COUNT:
-            return min(v)
-        i0 %= SECTOR_COUNT
-        if i0 + n <= SECTOR_COUNT:
-            return min(v[i0 : i0 + n])
-        return min(min(v[i0:]), min(v[: i0 + n - SECTOR_COUNT]))
-
-
-_SECTOR = 360.0 / SECTOR_COUNT
-_HALF_SECTOR = _SECTOR / 2
-
-
-def fuse_beams(beams: list[tuple[float, float, float, float]], ranges, range_max: float) -> list[float]:
-    """:func:`rsal.behaviours.fuse` of :func:`~rsal.behaviours.beam_points` for few beams, in plain
-    Python: ``beams`` are (x, y, cos yaw, sin yaw) of each beam's origin in the robot frame; a beam
-    counts when its range is finite and below ``range_max`` (the nearest point per sector)."""
-    d = [math.inf] * SECTOR_COUNT
-    lim = range_max * 0.999
-    for (bx, by, c, sn), r in zip(beams, ranges.tolist(), strict=False):
-        if not r < lim:  # also NaN
-            continue
-        x, y = bx + r * c, by + r * sn
-        i = math.floor((math.degrees(math.atan2(y, x)) + _HALF_SECTOR) / _SECTOR) % SECTOR_COUNT
-        dist = math.hypot(x, y)
-        if dist < d[i]:
-            d[i] = dist
-    return d
-
-
 class SwarmPioneer(Pioneer):
-    """A Pioneer with the :class:`Disperse` behaviour, its cycle made lean for a crowd: each ranger's
-    beam geometry is computed once, and rangers of up to ``fast_beams`` beams (the sonar ring) are
-    fused in plain Python (:func:`fuse_beams`, :class:`ListSectors`) instead of numpy. The behaviour
-    and its outputs are those of :meth:`rsal.robot.Pioneer.update`."""
-
-    fast_beams = 32
+    """A :class:`rsal.robot.Pioneer` whose behaviour is :class:`Disperse`: the same cycle, with the
+    robot's heading handed to the behaviour before each step."""
 
     def __init__(self, devices, **kw):
         super().__init__(devices, **kw)
-        old = self.behaviour
-        self.behaviour = Disperse(old.p)
-        self._poses: dict = {}  # ranger address -> its beams' poses (fixed geometry, computed once)
-        self._beams: dict = {}  # ranger address -> [(x, y, cos, sin)] for the plain-Python fusion
-        self._last_xy: tuple[float, float] | None = None
-
-    def _geometry(self, r, n: int):
-        poses = self._poses.get(r.addr)
-        if poses is None or len(poses) != n:
-            poses = self._poses[r.addr] = r.sensor_poses()
-            self._beams[r.addr] = [(x, y, math.cos(a), math.sin(a)) for x, y, a in poses.tolist()]
-        return poses
-
-    def obstacle_points(self) -> list[np.ndarray]:
-        """As :meth:`Robot.obstacle_points`, with each ranger's beam poses computed once."""
-        out = []
-        for r in (self.lasers if self.laser_enabled else []) + self.sonars:
-            m = r.latest
-            if m is None or not r.alive:
-                continue
-            try:
-                poses = self._geometry(r, len(m.ranges))
-            except Exception as e:  # describe not answered yet
-                log.debug("%s: no geometry yet: %s", r.addr, e)
-                continue
-            out.append(beam_points(poses, m.ranges, m.range_max or float(np.max(m.ranges))))
-        return out
-
-    def sectors(self) -> Sectors:
-        """The fused sectors of the enabled rangers."""
-        rangers = (self.lasers if self.laser_enabled else []) + self.sonars
-        if any(r.latest is not None and len(r.latest.ranges) > self.fast_beams for r in rangers):
-            return fuse(self.obstacle_points())
-        d: list[float] | None = None
-        for r in rangers:
-            m = r.latest
-            if m is None or not r.alive:
-                continue
-            try:
-                self._geometry(r, len(m.ranges))
-            except Exception as e:  # describe not answered yet
-                log.debug("%s: no geometry yet: %s", r.addr, e)
-                continue
-            f = fuse_beams(self._beams[r.addr], m.ranges, m.range_max or float(np.max(m.ranges)))
-            d = f if d is None else [min(a, b) for a, b in zip(d, f, strict=True)]
-        return ListSectors(d if d is not None else [math.inf] * SECTOR_COUNT)
+        self.behaviour = Disperse(self.behaviour.p)
 
     def update(self) -> None:
-        pos = self.position2d
-        m = pos.latest
-        if m is None or not pos.alive:
-            return
-        x, y, yaw = m.pose
-        if self._last_xy is not None:
-            self.distance += math.hypot(x - self._last_xy[0], y - self._last_xy[1])
-        self._last_xy = (x, y)
-        b = self.behaviour
-        b.yaw = yaw
-        before = b.state
-        v, w = b.step(self.sectors(), time.monotonic(), bool(m.stall))
-        if b.state != before:
-            for fn in self._state_listeners:
-                fn(b.state)
-        cmd = (round(v, 3), round(w, 3))
-        if cmd != self._last_cmd or cmd != (0.0, 0.0):  # re-sent while moving, a stop once
-            pos.set_velocity(*cmd, hold=self.period > HOLD_REFRESH)  # see Pioneer.update
-            self._last_cmd = cmd
+        m = self.position2d.latest
+        if m is not None:
+            self.behaviour.yaw = m.pose[2]
+        super().update()
 
 
 def away_from(me: Position, others: Sequence[Position], radius: float) -> float | None:
@@ -322,115 +112,6 @@ def away_from(me: Position, others: Sequence[Position], radius: float) -> float 
     if not np.any(v):
         return None
     return math.atan2(v[1], v[0])
-
-
-# ---------------------------------------------------------------------------- the per-host hub
-class _Hub:
-    """What the swarm agents of one host share: a Fabric with one DeviceNode, one control loop
-    running every robot's behaviour cycle, one ``send_position`` subscription fanned out on the loop."""
-
-    _hubs: dict[int, _Hub] = {}
-
-    def __init__(self, host: AgentHost, period: float):
-        self.host = host
-        self.period = period
-        self.fabric = Fabric(host.session, own_session=False, direct_callbacks=True)  # no thread per device
-        self.node = self.fabric.node("*:position2d:0", "*:sonar:0", "*:laser:0", "*:simulation:0")
-        self.agents: dict[str, SwarmAgent] = {}
-        self.robots: dict[str, Pioneer] = {}
-        #: the latest pose of every robot, shared by the host's agents (they all receive the same messages)
-        self.board = Board()
-        self.board_timeout = 5.0
-        self.slice_size = 10
-        self._task: asyncio.Task | None = None
-        self._sub: Subscription | None = None
-        self.cycles = 0
-        self.overruns = 0
-        self.busy_s = 0.0
-        self.max_cycle_s = 0.0
-
-    @classmethod
-    def attach(cls, host: AgentHost, agent: SwarmAgent) -> _Hub:
-        hub = cls._hubs.get(id(host))
-        if hub is None or hub.host is not host:
-            hub = cls._hubs[id(host)] = cls(host, agent.period)
-        hub.agents[agent.id] = agent
-        hub.board_timeout = max(hub.board_timeout, agent.board_timeout)
-        return hub
-
-    def listen(self) -> None:
-        """Subscribe to ``send_position`` once for all agents of the host."""
-        if self._sub is None:
-            self._sub = self.host.services.subscribe(SendPosition.SERVICE, self._on_position, owner="swarm-hub")
-
-    def _on_position(self, msg: Message) -> None:  # the host's loop
-        now = time.time()
-        lat = max(0.0, now - msg.time)
-        b = msg.body
-        pose = Position(b.x, b.y, b.yaw)
-        seq = sequence(msg.conversation)
-        i = latency_bin(lat)
-        self.board.put(b.robot, BoardObject(topic="position", position=pose, timeout=self.board_timeout))
-        for a in self.agents.values():
-            if a.shared and a.id != msg.sender:
-                a._account(msg.sender, seq, i, lat)
-
-    def add_robot(self, name: str, robot: Pioneer) -> None:
-        self.robots[name] = robot
-        if self._task is None:
-            self._task = self.host.spawn(self._control(), "swarm control loop")
-
-    def remove_robot(self, name: str) -> Pioneer | None:
-        return self.robots.pop(name, None)
-
-    async def _control(self) -> None:
-        """Every robot's 100 ms behaviour cycle (thesis 3.6.2.2), in turn, on the host's loop: in
-        slices of :attr:`slice_size` robots with the loop served in between, so that no message waits
-        behind a whole cycle, and with no thread per robot (nor the GIL hand-overs between them)."""
-        loop = asyncio.get_running_loop()
-        next_t = loop.time()
-        while True:
-            start = loop.time()
-            busy = 0.0
-            robots = list(self.robots.values())
-            for k in range(0, len(robots), self.slice_size):
-                t0 = time.perf_counter()
-                for r in robots[k : k + self.slice_size]:
-                    if r.name not in self.robots:
-                        continue  # removed meanwhile
-                    try:
-                        r.update()
-                        r.updates += 1
-                    except Exception:
-                        log.exception("%s: update failed", r.name)
-                busy += time.perf_counter() - t0
-                await asyncio.sleep(0)
-            self.cycles += 1
-            self.busy_s += busy  # the robots' updates only, not the messages served in between
-            self.max_cycle_s = max(self.max_cycle_s, loop.time() - start)
-            next_t += self.period
-            now = loop.time()
-            if next_t < now:
-                self.overruns += 1
-                next_t = now
-            await asyncio.sleep(next_t - now)
-
-    def detach(self, agent: SwarmAgent) -> None:
-        self.agents.pop(agent.id, None)
-        if self.agents:
-            return
-        if self._task is not None:
-            self._task.cancel()
-        if self._sub is not None:
-            self._sub.close()
-        self.node.close()
-        self.fabric.close()
-        if _Hub._hubs.get(id(self.host)) is self:
-            del _Hub._hubs[id(self.host)]
-
-    def load(self) -> float:
-        """Share of the control period the control loop was busy (1.0 = saturated)."""
-        return self.busy_s / (self.cycles * self.period) if self.cycles else 0.0
 
 
 # ---------------------------------------------------------------------------- agents
@@ -494,7 +175,7 @@ class SwarmAgent(RobotAgent):
         self.latency = LatencyHistogram()
         self.received = 0
         self.unnumbered = 0  # send_position messages without a sequence number (other agents)
-        self._hub: _Hub | None = None
+        self._hub: RobotHub | None = None
         self._next_stats = 0.0
 
     # ------------------------------------------------------------------ receiving
@@ -563,11 +244,8 @@ class SwarmAgent(RobotAgent):
         self.broadcasting = False
 
     async def created(self) -> None:
-        host = self._require_host()
-        self._hub = _Hub.attach(host, self)
-        if self.shared:
-            self._hub.listen()
-        else:
+        self._join_hub()
+        if not self.shared:
             self.subscribe(SendPosition.SERVICE, self.receive)
         try:
             self.pioneer = await asyncio.to_thread(self._build_shared, self._hub)
@@ -582,7 +260,15 @@ class SwarmAgent(RobotAgent):
         self._next_report = loop.time() + random.Random(self.id).uniform(0.0, self.report_every)
         self._next_stats = loop.time() + self.stats_every
 
-    def _build_shared(self, hub: _Hub) -> Pioneer:  # a worker thread
+    def _join_hub(self) -> RobotHub:
+        """Attach to the host's :class:`agents.hub.RobotHub` and, when ``shared``, to its
+        ``send_position`` subscription (:func:`_account_shared` accounts each message for us)."""
+        self._hub = RobotHub.attach(self._require_host(), self, period=self.period, board_timeout=self.board_timeout)
+        if self.shared:
+            self._hub.listen(_account_shared)
+        return self._hub
+
+    def _build_shared(self, hub: RobotHub) -> Pioneer:  # a worker thread
         name = self.robot
         deadline = time.monotonic() + self.startup_timeout
         ranger = "laser" if self.laser else "sonar"
@@ -675,232 +361,12 @@ class SwarmAgent(RobotAgent):
         )
 
 
-class SwarmMonitor(Agent):
-    """Judges a swarm run from the simulation's ground truth (thesis 4.2.3).
-
-    Every ``sample_every`` seconds it reads the true pose of each robot from the ``simulation``
-    device of node ``simulation``, counts overlaps (two centres closer than ``2 * radius -
-    tolerance``; ``radius`` is the robot's inscribed radius, so a count is a certain overlap) and the
-    mean nearest-neighbour distance (the spread); it merges the ``swarm_stats`` of the agents. After
-    ``duration`` simulated seconds it publishes ``Outcome("verdict", "swarm", ok=..., final=True)``:
-    ok when there was no overlap, the delivery ratio is at least ``min_delivery`` percent, the p99
-    latency at most ``max_p99_ms`` and every robot's agent reported. ``robots`` is a count (robots
-    ``<prefix>0`` .. ``<prefix>N-1``) or a list of robot ids.
-    """
-
-    capabilities = ("outcome",)
-
-    def __init__(
-        self,
-        agent_id: str,
-        *,
-        robot: str = "",
-        robots: int | Sequence[str] = 100,
-        prefix: str = "r",
-        duration: float = 60.0,
-        sample_every: float = 0.5,
-        radius: float = 0.19,
-        tolerance: float = 0.02,
-        min_delivery: float = 100.0,
-        max_p99_ms: float = 50.0,
-        simulation: str = "sim",
-        startup_timeout: float = 60.0,
-        report_every: float = 10.0,
-    ):
-        super().__init__(agent_id, period=sample_every, robot=robot)
-        if isinstance(robots, bool) or not isinstance(robots, (int, list, tuple)):
-            raise ValueError(f"agent {agent_id}: robots {robots!r} must be a count or a list of robot ids")
-        if isinstance(robots, int):
-            if robots < 1:
-                raise ValueError(f"agent {agent_id}: robots {robots!r} must be at least 1")
-            robots = [f"{prefix}{i}" for i in range(robots)]
-        if not robots or not all(isinstance(r, str) and r for r in robots):
-            raise ValueError(f"agent {agent_id}: robots must name at least one robot id")
-        if not duration > 0:
-            raise ValueError(f"agent {agent_id}: duration {duration!r} must be a positive number of seconds")
-        self.robots = list(robots)
-        self.duration = float(duration)
-        self.sample_every = float(sample_every)
-        self.min_dist = 2.0 * float(radius) - float(tolerance)
-        self.min_delivery = float(min_delivery)
-        self.max_p99_ms = float(max_p99_ms)
-        self.sim_node = simulation
-        self.startup_timeout = float(startup_timeout)
-        self.report_every = float(report_every)
-        self.stats: dict[str, dict] = {}  # sender -> its latest swarm_stats body
-        self.samples = 0
-        self.overlaps = 0  # pairs found overlapping, summed over samples
-        self.closest = math.inf  # smallest centre distance seen, m
-        self.spread: list[tuple[float, float]] = []  # (sim time, mean nearest-neighbour distance)
-        self.verdict: Outcome | None = None
-        self.fabric: Fabric | None = None
-
-    async def created(self) -> None:
-        self.subscribe(STATS_SERVICE, self._on_stats)
-
-    def _on_stats(self, msg: Message) -> None:
-        if isinstance(msg.body, dict) and isinstance(msg.body.get("latency"), dict):
-            self.stats[msg.sender] = msg.body
-
-    def _simulation(self):  # a worker thread
-        self.fabric = Fabric(self._require_host().session, own_session=False)
-        node = self.fabric.node(f"{self.sim_node}:simulation:0")
-        try:
-            node.wait_for(f"{self.sim_node}:simulation:0", 1, self.startup_timeout)
-            sim = node.device(f"{self.sim_node}:simulation:0")
-            sim.wait_for_data(self.startup_timeout)
-        except TimeoutError:
-            raise TimeoutError(
-                f"{self.id}: no simulation device {self.sim_node}:simulation:0 within {self.startup_timeout:g} s "
-                "(is 'rsal sim' running and reachable?)"
-            ) from None
-        finally:
-            node.close()
-        return sim
-
-    async def poses(self, sim) -> np.ndarray:
-        """(n, 2) true positions of the watched robots (one concurrent get_pose per robot)."""
-        futs = [asyncio.wrap_future(sim.rpc_async("get_pose", name=r)) for r in self.robots]
-        replies = await asyncio.gather(*futs)
-        return np.array([r["pose"][:2] for r in replies], dtype=float)
-
-    def check(self, xy: np.ndarray, t: float) -> None:
-        """Account one ground-truth sample: overlaps, closest pair, spread."""
-        from scipy.spatial import cKDTree
-
-        self.samples += 1
-        if len(xy) < 2:
-            return
-        tree = cKDTree(xy)
-        self.overlaps += len(tree.query_pairs(self.min_dist))
-        d, _ = tree.query(xy, k=2)
-        nn = d[:, 1]
-        self.closest = min(self.closest, float(nn.min()))
-        self.spread.append((t, float(nn.mean())))
-
-    def merged(self) -> tuple[int, int, LatencyHistogram, int]:
-        """(received, expected, latency histogram, reporting agents) over the latest stats."""
-        got = want = 0
-        hist = LatencyHistogram()
-        for s in self.stats.values():
-            try:
-                got += int(s.get("received", 0))
-                want += int(s.get("expected", 0))
-                hist.merge(LatencyHistogram.from_dict(s["latency"]))
-            except (TypeError, ValueError) as e:
-                log.warning("%s: ignored bad swarm_stats: %s", self.id, e)
-        return got, want, hist, len(self.stats)
-
-    def judge(self, elapsed: float) -> Outcome:
-        got, want, hist, reporting = self.merged()
-        delivery = 100.0 * got / want if want else 0.0
-        p99 = 1000.0 * hist.quantile(0.99) if hist.n else math.inf
-        n = len(self.robots)
-        problems = []
-        if self.overlaps:
-            problems.append(f"{self.overlaps} overlap(s), closest {self.closest:.2f} m")
-        if delivery < self.min_delivery:
-            problems.append(f"delivery {delivery:.2f} % < {self.min_delivery:g} %")
-        if not p99 <= self.max_p99_ms:
-            problems.append(f"p99 latency {p99:.0f} ms > {self.max_p99_ms:g} ms")
-        if reporting < n:
-            problems.append(f"stats from {reporting} of {n} agents")
-        s0 = self.spread[0][1] if self.spread else math.nan
-        s1 = self.spread[-1][1] if self.spread else math.nan
-        text = (
-            f"{n} robots {elapsed:.0f} s: {'no overlap' if not self.overlaps else f'{self.overlaps} overlap(s)'}, "
-            f"delivery {delivery:.1f} % ({got}/{want}), p99 latency {p99:.0f} ms, spread {s0:.1f} -> {s1:.1f} m"
-        )
-        if problems:
-            text += " -- " + "; ".join(problems)
-        return Outcome("verdict", "swarm", text, ok=not problems, final=True)
-
-    async def body(self) -> None:
-        sim = await asyncio.to_thread(self._simulation)
-        loop = asyncio.get_running_loop()
-        t0 = sim.latest.t
-        next_report = loop.time() + self.report_every
-        while True:
-            started = loop.time()
-            t = sim.latest.t
-            try:
-                xy = await self.poses(sim)
-            except Exception as e:  # a slow or restarting simulator: skip this sample
-                log.warning("%s: ground-truth sample failed: %s", self.id, e)
-            else:
-                self.check(xy, t)
-            if t - t0 >= self.duration:
-                self.verdict = self.judge(t - t0)
-                self.publish(Outcome.SERVICE, self.verdict)
-                log.info("%s: %s", self.id, self.verdict.text)
-                return
-            if loop.time() >= next_report:
-                next_report += self.report_every
-                log.info("%s: %s", self.id, self.judge(t - t0).text)
-            await asyncio.sleep(max(0.0, self.sample_every - (loop.time() - started)))
-
-    async def killed(self) -> None:
-        if self.fabric is not None:
-            self.fabric.close()
-
-
-# ---------------------------------------------------------------------------- worlds
-def crowd_world(
-    n: int,
-    *,
-    spacing: float = 1.2,
-    seed: int = 0,
-    bitmap: str = "arena.png",
-    model: str = "pioneer2dx",
-    name: str = "r",
-) -> str:
-    """The Stage world text of ``n`` robots (``<name>0`` ..) on a square grid ``spacing`` m apart,
-    centred on the 128 m arena's free middle, each facing a random direction (``seed``).
-    ``bitmap`` is the arena's floorplan, relative to where the world file is written."""
-    if n < 1:
-        raise ValueError(f"a crowd needs at least one robot, got {n}")
-    side = math.ceil(math.sqrt(n))
-    half = (side - 1) * spacing / 2.0
-    if half > 19.0:
-        raise ValueError(f"{n} robots {spacing:g} m apart do not fit the arena's free square (|x|, |y| < 20 m)")
-    rng = random.Random(seed)
-    colors = ("red", "blue", "yellow", "green", "orange", "cyan", "magenta", "gray")
-    lines = [
-        f"# RSAL fabric -- a crowd of {n} Pioneers for the Swarm scenario (thesis 4.2.3), written by",
-        "# agents.scenarios.swarm.crowd_world: the 128 m arena, robots on a square grid around its centre,",
-        f"# {spacing:g} m apart, random headings (seed {seed}). Each is a Pioneer 2DX with its 8-sonar ring",
-        "# (the light sensor model: no laser). Stage 4 syntax; original to this project.",
-        "",
-        'include "pioneer.inc"',
-        'include "map.inc"',
-        "",
-        "resolution 0.02",
-        "interval_sim 100",
-        "speedup 1.000",
-        "paused 0",
-        "",
-        "floorplan",
-        "(",
-        '  name "arena"',
-        f'  bitmap "{bitmap}"',
-        "  size [ 128.0 128.0 0.8 ]",
-        "  pose [ 0 0 0 0 ]",
-        ")",
-        "",
-    ]
-    for i in range(n):
-        row, col = divmod(i, side)
-        x, y = -half + col * spacing, -half + row * spacing
-        yaw = rng.uniform(-180.0, 180.0)
-        lines.append(
-            f'{model}( name "{name}{i}" pose [ {x:.2f} {y:.2f} 0 {yaw:.0f} ] color "{colors[row % len(colors)]}" )'
-        )
-    return "\n".join(lines) + "\n"
-
-
-def write_crowd_world(path: str | Path, n: int, **kw) -> Path:
-    """Write :func:`crowd_world` to ``path`` with the arena bitmap referenced by absolute path."""
-    p = Path(path)
-    arena = Path(__file__).resolve().parents[3] / "maps" / "arena.png"
-    p.write_text(crowd_world(n, bitmap=str(arena), **kw))
-    return p
+def _account_shared(hub: RobotHub, msg: Message, now: float) -> None:
+    """The hub's ``send_position`` listener: the sequence number and latency bin of a message are
+    worked out once and accounted by every swarm agent of the host that shares the subscription."""
+    lat = max(0.0, now - msg.time)
+    seq = sequence(msg.conversation)
+    i = latency_bin(lat)
+    for a in hub.agents.values():
+        if isinstance(a, SwarmAgent) and a.shared and a.id != msg.sender:
+            a._account(msg.sender, seq, i, lat)
