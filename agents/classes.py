@@ -16,7 +16,7 @@ Device discovery and ``describe`` block; they run in a worker thread with ``asyn
 the host's loop keeps serving its other agents. The robot's own 100 ms control cycle runs on the
 robot's thread (3.6.2.2); the agent's steps only read its pose and publish.
 
-:data:`AGENT_CLASSES` names the classes the command line knows.
+:func:`agents.registry.agent_class` registers the classes that scenario files and ``rsal agent`` name.
 """
 
 from __future__ import annotations
@@ -32,10 +32,11 @@ from rsal.data import Position
 from rsal.msgs import RpcError
 from rsal.robot import Pioneer, Robot, RobotError, robot_devices
 
+from .registry import agent_class
 from .runtime import Agent
 from .services import SendPosition
 
-__all__ = ["AGENT_CLASSES", "RobotAgent", "WallfollowAgent"]
+__all__ = ["RobotAgent", "WallfollowAgent"]
 
 log = logging.getLogger(__name__)
 
@@ -225,6 +226,7 @@ class RobotAgent(Agent):
         return f"{where}  travelled {r.distance:5.1f} m  {r.state}  sent {self.sent} position(s)"
 
 
+@agent_class("WallfollowAgent")
 class WallfollowAgent(RobotAgent):
     """Wall-follows with its robot and publishes the robot's position every second (thesis 3.6.2.4)."""
 
@@ -232,9 +234,6 @@ class WallfollowAgent(RobotAgent):
 
     def configure(self, robot: Pioneer) -> None:
         robot.set_wallfollow(True, side=self.side)
-
-
-AGENT_CLASSES: dict[str, type[RobotAgent]] = {c.__name__: c for c in (WallfollowAgent,)}
 
 
 def __getattr__(name: str):

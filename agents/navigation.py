@@ -24,6 +24,7 @@ from rsal.msgs import ErrorCode, RpcError
 from rsal.robot import NavRobot, RobotError
 
 from .classes import RobotAgent
+from .registry import agent_class
 from .services import Message, NewGoal, Outcome, SendPosition, match
 
 __all__ = ["GoalResult", "NavAgent", "number_arg"]
@@ -54,6 +55,7 @@ def number_arg(agent_id: str, name: str, value, lo: float, hi: float = math.inf)
     return float(value)
 
 
+@agent_class("NavAgent")
 class NavAgent(RobotAgent):
     """Drives a NavRobot to goals on the map (thesis fig. 3.9 NavAgent): ``new_goal`` messages with
     ``to`` equal to its id, or :meth:`goto` from an agent of the same process."""

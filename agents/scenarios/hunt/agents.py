@@ -28,6 +28,7 @@ from agents.classes import WallfollowAgent
 from agents.contractnet import Initiator, Participant
 from agents.navigation import NavAgent
 from agents.navigation import number_arg as _number
+from agents.registry import agent_class
 from agents.services import Hello, Message, Outcome, SendPosition, match
 from rsal.clock import clock
 from rsal.data import Position
@@ -40,6 +41,7 @@ __all__ = ["EscapeAgent", "FollowAgent"]
 log = logging.getLogger(__name__)
 
 
+@agent_class("FollowAgent")
 class FollowAgent(NavAgent):
     """A hunter (thesis 4.2.1): chases its ``prey`` (a robot id) by navigating to the prey's latest
     broadcast position until within ``capture_distance`` metres, then publishes ``caught``. With
@@ -244,6 +246,7 @@ class FollowAgent(NavAgent):
         return f"{line}  {chase}, caught {self.catches}"
 
 
+@agent_class("EscapeAgent")
 class EscapeAgent(WallfollowAgent):
     """The prey of the hunting scenario (thesis 4.2.1): wall-follows, keeping the wall on its right,
     and broadcasts its position so that hunters can chase it. ``speed`` (m/s) is its cruise speed

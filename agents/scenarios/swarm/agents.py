@@ -33,6 +33,7 @@ import numpy as np
 
 from agents.classes import RobotAgent
 from agents.hub import RobotHub
+from agents.registry import agent_class
 from agents.services import Message, SendPosition
 from rsal.behaviours import Sectors, Subsumption
 from rsal.data import Board, BoardObject, Position, normalize_angle
@@ -115,6 +116,7 @@ def away_from(me: Position, others: Sequence[Position], radius: float) -> float 
 
 
 # ---------------------------------------------------------------------------- agents
+@agent_class("SwarmAgent")
 class SwarmAgent(RobotAgent):
     """One robot of the swarm (thesis 4.2.3): wall-follows with obstacle avoidance, broadcasts its
     pose on ``send_position`` every ``report_every`` seconds and keeps the others' latest poses on

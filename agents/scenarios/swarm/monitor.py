@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from agents.registry import agent_class
 from agents.runtime import Agent
 from agents.services import Message, Outcome
 from rsal.client import Fabric
@@ -26,6 +27,7 @@ __all__ = ["SwarmMonitor"]
 log = logging.getLogger(__name__)
 
 
+@agent_class("SwarmMonitor")
 class SwarmMonitor(Agent):
     """Judges a swarm run from the simulation's ground truth (thesis 4.2.3).
 
