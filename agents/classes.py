@@ -8,15 +8,15 @@ on the ``send_position`` service (3.6.1, fig. 3.10) every ``report_every`` secon
 A robot without a localize device reports in its odometry frame, which starts at (0, 0, 0) where the
 robot was created; given a start ``pose`` ([x, y, degrees], thesis 3.5) or ``simulation`` true (the
 true start pose read from the simulation device), the agent sets the odometry to it and reports in
-the ``map`` frame. :class:`EscapeAgent`, the prey of Hunt and Prey, spins in place once a hunter
-reports it caught. Subclasses that drive another kind of robot override ``make_robot`` and ``needs``
-(e.g. :class:`agents.hunt.NavAgent`).
+the ``map`` frame. Subclasses that drive another kind of robot override ``make_robot`` and ``needs``
+(e.g. :class:`agents.navigation.NavAgent`); scenarios subclass these (the prey of Hunt and Prey,
+:class:`agents.scenarios.hunt.EscapeAgent`, is a :class:`WallfollowAgent`).
 
 Device discovery and ``describe`` block; they run in a worker thread with ``asyncio.to_thread`` so
 the host's loop keeps serving its other agents. The robot's own 100 ms control cycle runs on the
 robot's thread (3.6.2.2); the agent's steps only read its pose and publish.
 
-:data:`AGENT_CLASSES` names the classes the command line knows.
+:func:`agents.registry.agent_class` registers the classes that scenario files and ``rsal agent`` name.
 """
 
 from __future__ import annotations
@@ -32,10 +32,11 @@ from rsal.data import Position
 from rsal.msgs import RpcError
 from rsal.robot import Pioneer, Robot, RobotError, robot_devices
 
+from .registry import agent_class
 from .runtime import Agent
-from .services import Outcome, SendPosition, match
+from .services import SendPosition
 
-__all__ = ["AGENT_CLASSES", "EscapeAgent", "RobotAgent", "WallfollowAgent"]
+__all__ = ["RobotAgent", "WallfollowAgent"]
 
 log = logging.getLogger(__name__)
 
@@ -225,6 +226,7 @@ class RobotAgent(Agent):
         return f"{where}  travelled {r.distance:5.1f} m  {r.state}  sent {self.sent} position(s)"
 
 
+@agent_class("WallfollowAgent")
 class WallfollowAgent(RobotAgent):
     """Wall-follows with its robot and publishes the robot's position every second (thesis 3.6.2.4)."""
 
@@ -234,51 +236,11 @@ class WallfollowAgent(RobotAgent):
         robot.set_wallfollow(True, side=self.side)
 
 
-class EscapeAgent(WallfollowAgent):
-    """The prey of the hunting scenario (thesis 4.2.1): wall-follows, keeping the wall on its right,
-    and broadcasts its position so that hunters can chase it. ``speed`` (m/s) is its cruise speed
-    (default: the Pioneer behaviour's, 0.4 m/s). When an ``outcome`` ``caught`` about its robot
-    arrives it stops wall-following and spins in place at ``spin_rate`` rad/s ("the prey spins")."""
+def __getattr__(name: str):
+    # EscapeAgent moved to its scenario; ``agents.classes:EscapeAgent`` in scenario files and old
+    # imports still find it (imported only when asked for, so this module imports no scenario).
+    if name == "EscapeAgent":
+        from agents.scenarios.hunt import EscapeAgent
 
-    side = "right"
-    capabilities = ("send_position", "prey")
-
-    def __init__(
-        self,
-        agent_id: str,
-        *,
-        speed: float | None = None,
-        spin_rate: float = 0.8,
-        **kw,
-    ):
-        super().__init__(agent_id, **kw)
-        if speed is not None and (isinstance(speed, bool) or not isinstance(speed, int | float) or not 0 < speed <= 2):
-            raise ValueError(f"agent {agent_id}: speed {speed!r} must be a number in (0, 2] m/s")
-        if isinstance(spin_rate, bool) or not isinstance(spin_rate, int | float) or not 0 < spin_rate <= 3:
-            raise ValueError(f"agent {agent_id}: spin_rate {spin_rate!r} must be a number in (0, 3] rad/s")
-        self.speed = None if speed is None else float(speed)
-        self.spin_rate = float(spin_rate)
-        self.caught_by: str | None = None  # the agent that reported the catch
-
-    def configure(self, robot: Pioneer) -> None:
-        if self.speed is not None:
-            robot.behaviour.p.cruise_speed = min(robot.behaviour.p.cruise_speed, self.speed)
-        super().configure(robot)
-
-    async def created(self) -> None:
-        await super().created()
-        self.subscribe(Outcome.SERVICE, self._on_caught, filter=match(event="caught", subject=self.robot))
-
-    def _on_caught(self, msg) -> None:
-        if self.caught_by is not None or self.pioneer is None:
-            return
-        self.caught_by = msg.sender
-        log.info("%s: %s; spinning", self.id, msg.body.text)
-        self.pioneer.set_command(0.0, self.spin_rate)  # also ends the wall-following
-
-    def status(self) -> str:
-        line = super().status()
-        return f"{line}  caught by {self.caught_by}, spinning" if self.caught_by else line
-
-
-AGENT_CLASSES: dict[str, type[RobotAgent]] = {c.__name__: c for c in (WallfollowAgent, EscapeAgent)}
+        return EscapeAgent
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

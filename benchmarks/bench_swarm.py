@@ -1,17 +1,17 @@
 """Swarm: N robots and N agents broadcasting positions at 2 Hz (thesis 4.2.3, "100 robots").
 
 For each N of ``--robots``: ``rsal sim`` runs a crowd of N sonar Pioneers in the 128 m arena
-(:func:`agents.swarm.crowd_world`) in one process; one agent host process runs N
-:class:`agents.swarm.SwarmAgent` (one Zenoh session, one shared control thread, one shared
-``send_position`` subscriber), each wall-following/dispersing its robot and broadcasting its pose
-every 0.5 s while every agent receives every other's. After ``--warmup`` seconds the figures are
-taken over ``--seconds`` wall seconds; then the broadcasts stop and every receiver's count from
-every sender is compared with what the sender sent (exact delivery, no sampling).
+(:func:`agents.scenarios.swarm.crowd_world`) in one process; one agent host process runs N
+:class:`agents.scenarios.swarm.SwarmAgent` (one Zenoh session, one shared control loop and one
+shared ``send_position`` subscriber: :class:`agents.hub.RobotHub`), each wall-following/dispersing
+its robot and broadcasting its pose every 0.5 s while every agent receives every other's. After
+``--warmup`` seconds the figures are taken over ``--seconds`` wall seconds; then the broadcasts
+stop and every receiver's count from every sender is compared with what the sender sent (exact delivery, no sampling).
 
 Figures: published and delivered messages per second, delivery ratio, latency p50/p99/max
 (receive wall time - the message's ``time``, log bins: an upper bound within 26 %), the
 simulator's real-time factor (simulated / wall time, from its ``simulation`` device), the share
-of the agents' 100 ms control period the shared control thread is busy, control cycles that
+of the agents' 100 ms control period the shared control loop is busy, control cycles that
 overran, and the CPU use of both processes. *Real time* means the simulator keeps >= 0.95 of real
 time and fewer than 5 % of control cycles overrun.
 
@@ -49,8 +49,8 @@ def _cpu_seconds(pid: int) -> float:
 
 async def _host(args) -> dict:
     from agents.runtime import AgentHost
+    from agents.scenarios.swarm import LatencyHistogram, SwarmAgent
     from agents.services import SendPosition
-    from agents.swarm import LatencyHistogram, SwarmAgent, _Hub
     from rsal.client import Fabric
     from rsal.transport import TransportArgs
 
@@ -58,8 +58,7 @@ async def _host(args) -> dict:
         """Broadcasts a fixed pose; no robot (the messaging baseline)."""
 
         async def created(self) -> None:
-            self._hub = _Hub.attach(self._require_host(), self)
-            self._hub.listen()
+            self._join_hub()  # the host's RobotHub and its shared send_position subscription
             self.frame = "map"
             loop = asyncio.get_running_loop()
             self._next_report = loop.time() + (hash(self.id) % 1000) / 1000 * self.report_every
@@ -182,7 +181,7 @@ def _line(r: dict) -> str:
 
 
 def run(args) -> None:
-    from agents.swarm import write_crowd_world
+    from agents.scenarios.swarm.agents import write_crowd_world
 
     largest = None
     for n in args.robot_list:

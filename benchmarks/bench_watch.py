@@ -1,7 +1,7 @@
 """``rsal watch`` under a 100-robot fleet: does the logger keep up? (thesis 4.2.3 "100 robots", 5.2.3).
 
 ``rsal sim`` runs a crowd of ``--robots`` sonar Pioneers in the 128 m arena (the Swarm world of
-:func:`agents.swarm.crowd_world`): every robot publishes odometry and its sonar ring at 10 Hz and
+:func:`agents.scenarios.swarm.crowd_world`): every robot publishes odometry and its sonar ring at 10 Hz and
 its battery at 1 Hz (sonar:0 and ranger:0 are the same ring), so 100 robots put about 3,100
 samples/s on the fabric; each robot drives a slow circle. In this process a
 :class:`rsal.watch.Watcher` subscribes to all of it and logs to an ``.rrd`` file for ``--seconds``
@@ -63,7 +63,7 @@ def main() -> None:
 
     import rerun as rr
 
-    from agents.swarm import write_crowd_world
+    from agents.scenarios.swarm.agents import write_crowd_world
     from rsal.msgs import VelocityCmd, encode
     from rsal.transport import TransportArgs, open_session
     from rsal.watch import Watcher, WatchOptions

@@ -16,7 +16,10 @@ higher layer that triggers overrides the motor output of every layer below it:
 4. **command** (lowest): the user's ``set_command(v, w)``.
 
 :class:`Subsumption` is a pure state machine (ranges and time in, ``(v, w)`` and the active
-layer out) so it is unit-tested without a network; :class:`rsal.robot.Pioneer` feeds it.
+layer out) so it is unit-tested without a network; :class:`rsal.robot.Pioneer` feeds it. For rangers
+of few beams (a sonar ring) :func:`fuse_beams` and :class:`ListSectors` do the same fusion in plain
+Python, which beats numpy's per-call overhead at that size (a crowd of robots runs it 1000 times a
+second on one host).
 """
 
 from __future__ import annotations
@@ -26,9 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["BehaviourParams", "Sectors", "Subsumption", "fuse"]
+__all__ = ["BehaviourParams", "ListSectors", "Sectors", "Subsumption", "beam_points", "fuse", "fuse_beams"]
 
 SECTOR_COUNT = 36  # 10 degrees each, sector 0 centred straight ahead, counter-clockwise
+_SECTOR = 360.0 / SECTOR_COUNT
+_HALF_SECTOR = _SECTOR / 2
 
 
 @dataclass
@@ -89,6 +94,42 @@ def beam_points(poses: np.ndarray, ranges: np.ndarray, range_max: float) -> np.n
     p = poses[hit]
     r = ranges[hit]
     return np.column_stack([p[:, 0] + r * np.cos(p[:, 2]), p[:, 1] + r * np.sin(p[:, 2])])
+
+
+class ListSectors(Sectors):
+    """:class:`Sectors` over a plain list: for a handful of beams, Python's own
+    arithmetic beats numpy's per-call overhead (the behaviour reads a sector range 7 times a cycle)."""
+
+    def __init__(self, dist: list[float]):
+        self.dist = dist  # a list here, not an array
+
+    def min_between(self, a0_deg: float, a1_deg: float) -> float:
+        i0 = math.floor((a0_deg + _HALF_SECTOR) / _SECTOR)
+        n = math.floor((a1_deg + _HALF_SECTOR) / _SECTOR) - i0 + 1
+        v = self.dist
+        if n >= SECTOR_COUNT:
+            return min(v)
+        i0 %= SECTOR_COUNT
+        if i0 + n <= SECTOR_COUNT:
+            return min(v[i0 : i0 + n])
+        return min(min(v[i0:]), min(v[: i0 + n - SECTOR_COUNT]))
+
+
+def fuse_beams(beams: list[tuple[float, float, float, float]], ranges, range_max: float) -> list[float]:
+    """:func:`fuse` of :func:`beam_points` for few beams, in plain
+    Python: ``beams`` are (x, y, cos yaw, sin yaw) of each beam's origin in the robot frame; a beam
+    counts when its range is finite and below ``range_max`` (the nearest point per sector)."""
+    d = [math.inf] * SECTOR_COUNT
+    lim = range_max * 0.999
+    for (bx, by, c, sn), r in zip(beams, ranges.tolist(), strict=False):
+        if not r < lim:  # also NaN
+            continue
+        x, y = bx + r * c, by + r * sn
+        i = math.floor((math.degrees(math.atan2(y, x)) + _HALF_SECTOR) / _SECTOR) % SECTOR_COUNT
+        dist = math.hypot(x, y)
+        if dist < d[i]:
+            d[i] = dist
+    return d
 
 
 class Subsumption:

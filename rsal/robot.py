@@ -16,13 +16,14 @@ position.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 from collections.abc import Callable, Iterable
 from concurrent.futures import Future
 
 import numpy as np
 
-from .behaviours import BehaviourParams, Subsumption, beam_points, fuse
+from .behaviours import SECTOR_COUNT, BehaviourParams, ListSectors, Sectors, Subsumption, beam_points, fuse, fuse_beams
 from .client import HOLD_REFRESH
 from .clock import clock
 from .data import BlobfinderBlob, Position
@@ -145,7 +146,14 @@ class Robot:
 
 
 class Pioneer(Robot):
-    """A Pioneer with the subsumption behaviour of thesis 3.6.2.4."""
+    """A Pioneer with the subsumption behaviour of thesis 3.6.2.4.
+
+    Its cycle fuses the enabled rangers into sectors (:meth:`sectors`): with numpy while a ranger
+    has more than :attr:`fast_beams` beams (a laser), else in plain Python with each ranger's beam
+    geometry computed once (a sonar ring: :func:`~rsal.behaviours.fuse_beams`); both give the same
+    sectors."""
+
+    fast_beams = 32
 
     def __init__(self, devices: Iterable[Device], *, params: BehaviourParams | None = None, **kw):
         super().__init__(devices, **kw)
@@ -154,6 +162,7 @@ class Pioneer(Robot):
         self._state_listeners: list[Callable[[str], None]] = []
         self.distance = 0.0  # metres travelled according to odometry
         self._last_pose: Position | None = None
+        self._beams: dict = {}  # ranger address -> [(x, y, cos, sin)] of its beams, for fuse_beams
         try:
             vmax, wmax = self.position2d.limits()
             bp = self.behaviour.p
@@ -176,6 +185,28 @@ class Pioneer(Robot):
     def set_wallfollow(self, on: bool = True, side: str | None = None) -> None:
         self.behaviour.set_wallfollow(on, side)
 
+    def sectors(self) -> Sectors:
+        """The enabled rangers fused into sectors around the robot (nearest obstacle per direction)."""
+        rangers = (self.lasers if self.laser_enabled else []) + self.sonars
+        if any(r.latest is not None and len(r.latest.ranges) > self.fast_beams for r in rangers):
+            return fuse(self.obstacle_points())
+        d: list[float] | None = None
+        for r in rangers:
+            m = r.latest
+            if m is None or not r.alive:
+                continue
+            beams = self._beams.get(r.addr)
+            if beams is None or len(beams) != len(m.ranges):
+                try:
+                    poses = r.sensor_poses()
+                except Exception as e:  # describe not answered yet
+                    log.debug("%s: no geometry yet: %s", r.addr, e)
+                    continue
+                beams = self._beams[r.addr] = [(x, y, math.cos(a), math.sin(a)) for x, y, a in poses.tolist()]
+            f = fuse_beams(beams, m.ranges, m.range_max or float(np.max(m.ranges)))
+            d = f if d is None else [min(a, b) for a, b in zip(d, f, strict=True)]
+        return ListSectors(d if d is not None else [math.inf] * SECTOR_COUNT)
+
     def update(self) -> None:
         pos = self.position2d
         if pos.latest is None or not pos.alive:
@@ -184,7 +215,7 @@ class Pioneer(Robot):
         if self._last_pose is not None and cur is not None:
             self.distance += cur.distance_to(self._last_pose)
         self._last_pose = cur
-        sectors = fuse(self.obstacle_points())
+        sectors = self.sectors()
         before = self.behaviour.state
         v, w = self.behaviour.step(sectors, clock().now(), pos.stalled)
         if self.behaviour.state != before:

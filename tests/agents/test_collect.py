@@ -15,8 +15,8 @@ import time
 
 import pytest
 
-from agents.collect import BLOB, COLLECT, BlobReport, CollectAgent, ExploreAgent, MasterAgent
 from agents.runtime import AgentHost
+from agents.scenarios.collect import BLOB, COLLECT, BlobReport, CollectAgent, ExploreAgent, MasterAgent
 from agents.services import Hello, Message, SendPosition
 from rsal.client import Fabric
 from rsal.keys import parse_device

@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from agents.distribution import DispersionAgent, assign, target_points
 from agents.runtime import Agent, AgentHost
+from agents.scenarios.distribution import DispersionAgent, assign, target_points
 from agents.services import Message, Outcome, SendPosition, match
 from rsal.msgs import MapData
 from rsal.transport import TransportArgs
@@ -250,7 +250,7 @@ def test_three_navagents_reach_distinct_targets_with_rsal_run(procs):
 def test_killed_navagent_is_dropped_and_its_target_reached_by_another(procs):
     """Three real NavAgents (AMCL + Wavefront + VFH in ``rsal sim``) in this process; the one holding
     target 0 is killed once all are driving: it is dropped and a live one drives to target 0."""
-    from agents.hunt import NavAgent
+    from agents.navigation import NavAgent
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     world = str(MAPS / "distribution.world")

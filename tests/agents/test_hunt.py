@@ -19,10 +19,10 @@ import time
 
 import pytest
 
-from agents.classes import EscapeAgent
-from agents.hunt import FollowAgent, NavAgent
+from agents.navigation import NavAgent
 from agents.registry import resolve
 from agents.runtime import Agent, AgentHost
+from agents.scenarios.hunt import EscapeAgent, FollowAgent
 from agents.services import NewGoal, Outcome
 from rsal.robot import RobotError
 from rsal.transport import TransportArgs, open_session

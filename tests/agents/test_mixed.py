@@ -24,11 +24,11 @@ from concurrent.futures import Future
 import numpy as np
 import pytest
 
-from agents.classes import EscapeAgent
-from agents.mixed import ViewAgent
 from agents.registry import resolve
 from agents.runtime import AgentHost
 from agents.scenario import load_scenario
+from agents.scenarios.hunt import EscapeAgent
+from agents.scenarios.mixed import ViewAgent
 from agents.services import Message, SendPosition
 from mrs_bridge.cli import sim_config
 from mrs_bridge.config import ConfigError, parse_config

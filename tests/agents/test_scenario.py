@@ -250,8 +250,9 @@ def test_the_demo_scenario_is_valid():
 
 
 def test_constructor_arguments_are_read_down_the_mro_through_kwargs():
-    from agents.classes import EscapeAgent, WallfollowAgent
+    from agents.classes import WallfollowAgent
     from agents.scenario import _accepts, constructor_kwargs
+    from agents.scenarios.hunt import EscapeAgent
 
     base, open_base = _accepts(WallfollowAgent)
     names, open_ = _accepts(EscapeAgent)  # (agent_id, *, speed, spin_rate, **kw) -> RobotAgent's

@@ -20,20 +20,18 @@ import numpy as np
 import pytest
 
 from agents.runtime import AgentHost
-from agents.services import Message, Outcome, SendPosition
-from agents.swarm import (
+from agents.scenarios.swarm import (
     LATENCY_EDGES,
     Disperse,
     LatencyHistogram,
-    ListSectors,
     SwarmAgent,
     SwarmMonitor,
     away_from,
     crowd_world,
-    fuse_beams,
     write_crowd_world,
 )
-from rsal.behaviours import Sectors, beam_points, fuse
+from agents.services import Message, Outcome, SendPosition
+from rsal.behaviours import Sectors
 from rsal.data import Position
 from rsal.transport import TransportArgs
 from simulator.loader import load_world
@@ -112,22 +110,6 @@ def test_disperse_steers_away_from_neighbours_until_a_wall_is_in_sight():
     wall.dist[9] = 0.6  # a wall on the left, at the wall distance
     b.step(wall, 0.2)
     assert b.state == "wallfollow"
-
-
-def test_plain_python_fusion_matches_the_numpy_fusion():
-    deg = np.radians([90, 50, 30, 10, -10, -30, -50, -90])  # the Pioneer 2DX sonar ring
-    poses = np.column_stack([[0.069, 0.114, 0.148, 0.166, 0.166, 0.148, 0.114, 0.069], np.zeros(8), deg])
-    poses[:, 1] = [0.136, 0.119, 0.078, 0.027, -0.027, -0.078, -0.119, -0.136]
-    beams = [(x, y, math.cos(a), math.sin(a)) for x, y, a in poses.tolist()]
-    rng = np.random.default_rng(1)
-    queries = [(-30, 30), (30, 100), (-100, -30), (60, 120), (-120, -60), (30, 60), (-60, -30), (170, 190), (-180, 180)]
-    for _ in range(300):
-        ranges = rng.uniform(0.05, 6.0, 8).astype(np.float32)
-        ranges[rng.random(8) < 0.3] = 5.0  # no echo: the sonar's maximum
-        ref = fuse([beam_points(poses, ranges, 5.0)])
-        fast = ListSectors(fuse_beams(beams, ranges, 5.0))
-        for a0, a1 in queries:
-            assert fast.min_between(a0, a1) == pytest.approx(ref.min_between(a0, a1)), (a0, a1, ranges)
 
 
 def test_constructor_errors_are_clear():

@@ -7,7 +7,16 @@ import math
 import numpy as np
 import pytest
 
-from rsal.behaviours import SECTOR_COUNT, BehaviourParams, Sectors, Subsumption, beam_points, fuse
+from rsal.behaviours import (
+    SECTOR_COUNT,
+    BehaviourParams,
+    ListSectors,
+    Sectors,
+    Subsumption,
+    beam_points,
+    fuse,
+    fuse_beams,
+)
 
 
 def polar(*pairs: tuple[float, float]) -> np.ndarray:
@@ -300,3 +309,19 @@ def test_wallfollow_side_is_checked():
         b.set_wallfollow(True, "up")
     b.set_wallfollow(True, "right")
     assert b.p.side == "right"
+
+
+def test_plain_python_fusion_matches_the_numpy_fusion():
+    deg = np.radians([90, 50, 30, 10, -10, -30, -50, -90])  # the Pioneer 2DX sonar ring
+    poses = np.column_stack([[0.069, 0.114, 0.148, 0.166, 0.166, 0.148, 0.114, 0.069], np.zeros(8), deg])
+    poses[:, 1] = [0.136, 0.119, 0.078, 0.027, -0.027, -0.078, -0.119, -0.136]
+    beams = [(x, y, math.cos(a), math.sin(a)) for x, y, a in poses.tolist()]
+    rng = np.random.default_rng(1)
+    queries = [(-30, 30), (30, 100), (-100, -30), (60, 120), (-120, -60), (30, 60), (-60, -30), (170, 190), (-180, 180)]
+    for _ in range(300):
+        ranges = rng.uniform(0.05, 6.0, 8).astype(np.float32)
+        ranges[rng.random(8) < 0.3] = 5.0  # no echo: the sonar's maximum
+        ref = fuse([beam_points(poses, ranges, 5.0)])
+        fast = ListSectors(fuse_beams(beams, ranges, 5.0))
+        for a0, a1 in queries:
+            assert fast.min_between(a0, a1) == pytest.approx(ref.min_between(a0, a1)), (a0, a1, ranges)

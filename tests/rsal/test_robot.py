@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from conftest import wait_until
 
-from rsal.behaviours import BehaviourParams
+from rsal.behaviours import BehaviourParams, ListSectors, fuse
 from rsal.data import Position
 from rsal.devices import Blobfinder, Gripper, Laser, Position2d, Ranger, Simulation, Sonar
 from rsal.msgs import BlobData, BlobfinderData, Position2dData, RangerData
@@ -188,6 +188,28 @@ def test_pioneer_with_the_laser_disabled_still_avoids_with_sonar(fab, rig):
     assert p.state == "avoid"
     v, w = fab.velocities()[-1]
     assert v < 0.2 and w != 0.0
+
+
+def test_pioneer_sectors_are_the_numpy_fusion_of_its_rangers(fab, rig):
+    # A sonar ring alone takes the plain-Python path, a laser the numpy one: the same sectors.
+    queries = [(-30, 30), (30, 100), (-100, -30), (60, 120), (-120, -60), (170, 190), (-180, 180)]
+    rng = np.random.default_rng(2)
+    mute = fab.device(Sonar, "r0:sonar:1")  # describe not answered: skipped by both
+    sonar_only = Pioneer([rig.pos, rig.laser, rig.sonar, mute], laser=False)
+    both = Pioneer([rig.pos, rig.laser, rig.sonar])
+    fab.push(mute, sonar_scan(front=0.2))
+    for _ in range(50):
+        ranges = rng.uniform(0.05, 6.0, 8)
+        ranges[rng.random(8) < 0.3] = 5.0  # no echo
+        fab.push(rig.sonar, RangerData(0.0, ranges, 0.0, 0.0, 0.1, 5.0))
+        fab.push(rig.laser, laser_scan(front=float(rng.uniform(0.3, 5.0))))
+        for robot in (sonar_only, both):
+            fast, ref = robot.sectors(), fuse(robot.obstacle_points())
+            for a0, a1 in queries:
+                assert fast.min_between(a0, a1) == pytest.approx(ref.min_between(a0, a1))
+    assert isinstance(sonar_only.sectors(), ListSectors) and not isinstance(both.sectors(), ListSectors)
+    rig.sonar._set_alive(False)
+    assert sonar_only.sectors().min_between(-180, 180) == math.inf  # a lost ranger is ignored
 
 
 def test_pioneer_takes_its_speed_limits_from_describe(rig):

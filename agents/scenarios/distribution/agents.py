@@ -40,13 +40,13 @@ from dataclasses import dataclass
 import numpy as np
 import zenoh
 
+from agents.registry import agent_class
+from agents.runtime import Agent
+from agents.services import Message, NewGoal, Outcome, SendPosition, match
 from rsal.client import Fabric
 from rsal.clock import clock, wait_for
 from rsal.data import Board, BoardObject, Position
 from rsal.msgs import MapData
-
-from .runtime import Agent
-from .services import Message, NewGoal, Outcome, SendPosition, match
 
 __all__ = ["DispersionAgent", "Targets", "assign", "target_points"]
 
@@ -174,6 +174,7 @@ def assign(robots: np.ndarray, targets: np.ndarray) -> list[tuple[int, int]]:
     return sorted(zip(ri.tolist(), ti.tolist(), strict=True))
 
 
+@agent_class("DispersionAgent")
 class DispersionAgent(Agent):
     """The thesis's DispersionAgent (4.2.4, "Advanced Distribution Scenario"): pings with ``hello``,
     keeps the answers on a blackboard by agent class, computes distribution points from the map,

@@ -30,18 +30,19 @@ import time
 from collections.abc import Mapping, Sequence
 from concurrent.futures import Future
 
+from agents.registry import agent_class
+from agents.runtime import Agent
+from agents.services import Message, SendPosition
 from rsal.client import Fabric
 from rsal.keys import DeviceAddr, parse_device
 from rsal.msgs import RpcError
-
-from .runtime import Agent
-from .services import Message, SendPosition
 
 __all__ = ["ViewAgent"]
 
 log = logging.getLogger(__name__)
 
 
+@agent_class("ViewAgent")
 class ViewAgent(Agent):
     """Mirrors the poses of the real ``robots`` onto their proxies in the virtual ``simulation``
     (a device address, default ``sim:simulation:0``) at up to ``rate`` Hz (thesis 4.2.1, 4.3)."""

@@ -1,0 +1,32 @@
+"""Swarm (thesis 4.2.3): a crowd of wall-following robots that broadcast their positions.
+
+- :mod:`.agents`: :class:`SwarmAgent` (one robot: wall-following with the :class:`Disperse` layer,
+  broadcasting, accounting what it receives), on the host's shared :class:`agents.hub.RobotHub`;
+- :mod:`.monitor`: :class:`SwarmMonitor`, the verdict from the simulation's ground truth;
+- :mod:`.metrics`: delivery and latency figures (:class:`LatencyHistogram`);
+- :mod:`.messages`: the ``swarm_stats`` service;
+- :mod:`.world`: :func:`crowd_world`, the Stage world of a crowd (``maps/swarm.world``).
+
+Notes: ``docs/scenarios/swarm.md``; scenario file ``deploy/scenarios/swarm.yaml``.
+"""
+
+from .agents import Disperse, SwarmAgent, SwarmPioneer, away_from
+from .messages import STATS_SERVICE
+from .metrics import LATENCY_EDGES, LatencyHistogram, latency_bin, sequence
+from .monitor import SwarmMonitor
+from .world import crowd_world, write_crowd_world
+
+__all__ = [
+    "LATENCY_EDGES",
+    "STATS_SERVICE",
+    "Disperse",
+    "LatencyHistogram",
+    "SwarmAgent",
+    "SwarmMonitor",
+    "SwarmPioneer",
+    "away_from",
+    "crowd_world",
+    "latency_bin",
+    "sequence",
+    "write_crowd_world",
+]

@@ -1,0 +1,374 @@
+"""The Swarm scenario's robots (thesis 4.2.3): wall-following Pioneers that broadcast their positions.
+
+"It includes 100 robots that spread out from their closely spaced starting positions and explore the
+map by wall-following. Low-level obstacle avoidance guides each robot to avoid collisions. In order
+to stress the MAS layer, each robot subscribes to the SendPositionService, broadcasts its own
+position and reads other position values."
+
+:class:`SwarmAgent` drives one Pioneer with the subsumption behaviour of 3.6.2.4 (wall-following,
+avoid, escape) and one more layer for open space (:class:`Disperse`), publishes its pose on
+``send_position`` every ``report_every`` seconds (2 Hz by default) and keeps every other robot's
+latest pose on a :class:`rsal.data.Board`. It measures what it receives (:mod:`.metrics`: delivery
+per sender from the broadcasts' sequence numbers, latency histogram) and publishes these figures on
+the ``swarm_stats`` service (:mod:`.messages`).
+
+Agents of one host share the costly parts through the host's :class:`agents.hub.RobotHub`: one
+Fabric and one DeviceNode to find all robots, one control loop on the host's asyncio loop that runs
+every robot's behaviour cycle in turn instead of a thread per robot, and one Zenoh subscriber on
+``send_position`` whose messages are decoded once, put once on the host's blackboard and accounted
+for each agent on the loop. ``shared=False`` gives an agent its own subscription and blackboard.
+The run's judge is :class:`.monitor.SwarmMonitor`, its world :func:`.world.crowd_world`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import random
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from agents.classes import RobotAgent
+from agents.hub import RobotHub
+from agents.registry import agent_class
+from agents.services import Message, SendPosition
+from rsal.behaviours import Sectors, Subsumption
+from rsal.data import Board, BoardObject, Position, normalize_angle
+from rsal.msgs import RpcError
+from rsal.robot import Pioneer, RobotError
+
+from .messages import STATS_SERVICE
+from .metrics import LatencyHistogram, latency_bin, sequence
+
+__all__ = ["Disperse", "SwarmAgent", "SwarmPioneer", "away_from"]
+
+log = logging.getLogger(__name__)
+
+
+# ---------------------------------------------------------------------------- behaviour
+class Disperse(Subsumption):
+    """The subsumption behaviour of thesis 3.6.2.4 with one more layer for a crowd in open space.
+
+    Plain wall-following curves towards its side while no wall is in sight, which in an open arena
+    keeps a robot circling where it started. Here, while wall-following sees no wall, the robot
+    instead steers to :attr:`heading` (radians, world frame; set from the neighbours' broadcast
+    positions) or, without one, drives straight on, so the crowd spreads out "towards a wall"
+    (thesis fig. 4.7); once a wall is in sight wall-following takes over. Escape and avoid still
+    override it. :attr:`yaw` is the robot's current heading, set every cycle by its robot.
+    """
+
+    def __init__(self, params=None):
+        super().__init__(params)
+        self.heading: float | None = None
+        self.yaw: float = 0.0
+
+    def step(self, s: Sectors, now: float, stalled: bool = False) -> tuple[float, float]:
+        v, w = super().step(s, now, stalled)
+        if self.state != "wallfollow":
+            return v, w
+        p = self.p
+        sign = 1.0 if p.side == "left" else -1.0
+        side_d = s.min_between(60, 120) if sign > 0 else s.min_between(-120, -60)
+        diag = s.min_between(30, 60) if sign > 0 else s.min_between(-60, -30)
+        if min(side_d, diag) <= 2.5 * p.wall_dist:
+            return v, w  # a wall to follow
+        self.state = "disperse"
+        if self.heading is None:
+            return p.cruise_speed, 0.0
+        err = normalize_angle(self.heading - self.yaw)
+        w = max(-p.turn_rate, min(p.turn_rate, 1.5 * err))
+        return p.cruise_speed * (1.0 if abs(err) < 0.8 else 0.4), w
+
+
+class SwarmPioneer(Pioneer):
+    """A :class:`rsal.robot.Pioneer` whose behaviour is :class:`Disperse`: the same cycle, with the
+    robot's heading handed to the behaviour before each step."""
+
+    def __init__(self, devices, **kw):
+        super().__init__(devices, **kw)
+        self.behaviour = Disperse(self.behaviour.p)
+
+    def update(self) -> None:
+        m = self.position2d.latest
+        if m is not None:
+            self.behaviour.yaw = m.pose[2]
+        super().update()
+
+
+def away_from(me: Position, others: Sequence[Position], radius: float) -> float | None:
+    """The heading (rad) away from the neighbours within ``radius`` m, each pushing with 1/d;
+    None when none is that close."""
+    if not others:
+        return None
+    xy = np.array([(o.x, o.y) for o in others], dtype=float)
+    d = np.array([me.x, me.y]) - xy
+    r2 = np.einsum("ij,ij->i", d, d)
+    near = (r2 < radius * radius) & (r2 > 1e-6)
+    if not near.any():
+        return None
+    v = (d[near] / r2[near, None]).sum(axis=0)
+    if not np.any(v):
+        return None
+    return math.atan2(v[1], v[0])
+
+
+# ---------------------------------------------------------------------------- agents
+@agent_class("SwarmAgent")
+class SwarmAgent(RobotAgent):
+    """One robot of the swarm (thesis 4.2.3): wall-follows with obstacle avoidance, broadcasts its
+    pose on ``send_position`` every ``report_every`` seconds and keeps the others' latest poses on
+    :attr:`board`; counts per sender what it received (:meth:`stats`).
+
+    ``laser`` false (the default) drives with the sonar ring only, as the thesis's swarm did.
+    Odometry starts at (0, 0, 0) on every robot; to share one frame the agent sets it to ``pose``
+    ([x, y, degrees], thesis 3.5) or, with ``simulation`` true and no ``pose``, to the robot's true
+    start pose read from the simulation device, and then reports in the ``map`` frame (odometry,
+    drifting). While it sees no wall it steers away from the neighbours within ``disperse_radius``
+    m (:class:`Disperse`). ``stats_every`` is the period of its ``swarm_stats`` messages (0: none);
+    ``board_timeout`` how long a pose stays on the board; ``side`` the wall to follow; ``shared``
+    false gives the agent its own ``send_position`` subscription instead of the host's shared one.
+    """
+
+    capabilities = ("send_position", STATS_SERVICE)
+
+    def __init__(
+        self,
+        agent_id: str,
+        *,
+        robot: str,
+        period: float = 0.1,
+        laser: bool = False,
+        report_every: float = 0.5,
+        startup_timeout: float = 60.0,
+        stats_every: float = 2.0,
+        board_timeout: float = 5.0,
+        side: str = "left",
+        shared: bool = True,
+        simulation: bool = True,
+        pose: Sequence[float] | None = None,
+        disperse_radius: float = 4.0,
+    ):
+        super().__init__(
+            agent_id,
+            robot=robot,
+            period=period,
+            laser=laser,
+            report_every=report_every,
+            startup_timeout=startup_timeout,
+            simulation=simulation,
+            pose=pose,
+        )
+        if not self.report_every > 0:
+            raise ValueError(f"agent {agent_id}: report_every {report_every!r} must be a positive number of seconds")
+        if side not in ("left", "right"):
+            raise ValueError(f"agent {agent_id}: side {side!r} must be 'left' or 'right'")
+        self.stats_every = float(stats_every)
+        self.board_timeout = float(board_timeout)
+        self.side = side
+        self.shared = bool(shared)
+        self.disperse_radius = float(disperse_radius)
+        self._board = Board()  # its own, when it has its own subscription
+        self.broadcasting = True
+        #: sender id -> [first sequence seen, last sequence seen, messages received]
+        self.senders: dict[str, list[int]] = {}
+        self.latency = LatencyHistogram()
+        self.received = 0
+        self.unnumbered = 0  # send_position messages without a sequence number (other agents)
+        self._hub: RobotHub | None = None
+        self._next_stats = 0.0
+
+    # ------------------------------------------------------------------ receiving
+    def receive(self, msg: Message, now: float | None = None) -> None:
+        """Account one ``send_position`` message and put its pose on the board (the host's loop)."""
+        if msg.sender == self.id:
+            return
+        lat = max(0.0, (time.time() if now is None else now) - msg.time)
+        b = msg.body
+        pose = Position(b.x, b.y, b.yaw)
+        self._board.put(b.robot, BoardObject(topic="position", position=pose, timeout=self.board_timeout))
+        self._account(msg.sender, sequence(msg.conversation), latency_bin(lat), lat)
+
+    def _account(self, sender: str, seq: int | None, lat_bin: int, lat: float) -> None:
+        self.received += 1
+        self.latency.add_bin(lat_bin, lat)
+        if seq is None:
+            self.unnumbered += 1
+            return
+        s = self.senders.get(sender)
+        if s is None:
+            self.senders[sender] = [seq, seq, 1]
+            return
+        if seq > s[1]:
+            s[1] = seq
+        elif seq < s[0]:
+            s[0] = seq
+        s[2] += 1
+
+    @property
+    def board(self) -> Board:
+        """The blackboard with the other robots' latest poses (thesis fig. 3.14): the host's shared
+        one when the agent uses the shared subscription, else its own."""
+        return self._hub.board if self.shared and self._hub is not None else self._board
+
+    def positions(self) -> dict[str, Position]:
+        """The latest pose of every other robot still on the board."""
+        return {k: o.position for k, o in self.board.items("position") if o.position is not None and k != self.robot}
+
+    def delivery(self) -> tuple[int, int]:
+        """(received, expected) numbered messages: expected counts every sequence number from the
+        first to the last one seen per sender, so the gaps are the losses."""
+        got = sum(s[2] for s in self.senders.values())
+        want = sum(s[1] - s[0] + 1 for s in self.senders.values())
+        return got, want
+
+    def stats(self) -> dict:
+        """The figures of the ``swarm_stats`` service."""
+        got, want = self.delivery()
+        return {
+            "robot": self.robot,
+            "sent": self.sent,
+            "received": got,
+            "expected": want,
+            "senders": len(self.senders),
+            "board": len(self.board),
+            "latency": self.latency.to_dict(),
+        }
+
+    # ------------------------------------------------------------------ lifecycle
+    def configure(self, robot: Pioneer) -> None:
+        robot.set_wallfollow(True, side=self.side)
+
+    def stop_broadcast(self) -> None:
+        """Stop publishing positions (the robot keeps driving); used to count the last messages."""
+        self.broadcasting = False
+
+    async def created(self) -> None:
+        self._join_hub()
+        if not self.shared:
+            self.subscribe(SendPosition.SERVICE, self.receive)
+        try:
+            self.pioneer = await asyncio.to_thread(self._build_shared, self._hub)
+        except BaseException:
+            self._hub.detach(self)
+            self._hub = None
+            raise
+        self.configure(self.pioneer)
+        self._hub.add_robot(self.robot, self.pioneer)
+        loop = asyncio.get_running_loop()
+        # Spread the broadcasts of a crowd started at once over the reporting period.
+        self._next_report = loop.time() + random.Random(self.id).uniform(0.0, self.report_every)
+        self._next_stats = loop.time() + self.stats_every
+
+    def _join_hub(self) -> RobotHub:
+        """Attach to the host's :class:`agents.hub.RobotHub` and, when ``shared``, to its
+        ``send_position`` subscription (:func:`_account_shared` accounts each message for us)."""
+        self._hub = RobotHub.attach(self._require_host(), self, period=self.period, board_timeout=self.board_timeout)
+        if self.shared:
+            self._hub.listen(_account_shared)
+        return self._hub
+
+    def _build_shared(self, hub: RobotHub) -> Pioneer:  # a worker thread
+        name = self.robot
+        deadline = time.monotonic() + self.startup_timeout
+        ranger = "laser" if self.laser else "sonar"
+
+        def wait(template: str, what: str) -> None:
+            while True:
+                if self._abort.is_set():
+                    raise InterruptedError(f"robot {name!r}: the search for its devices was aborted")
+                left = deadline - time.monotonic()
+                try:
+                    hub.node.wait_for(template, 1, max(0.01, min(0.2, left)))
+                    return
+                except TimeoutError:
+                    if left <= 0.2:
+                        raise TimeoutError(
+                            f"robot {name!r}: no {what} appeared within {self.startup_timeout:g} s "
+                            "(is its device server running and reachable?)"
+                        ) from None
+
+        wait(f"{name}:position2d:0", "position2d:0 device")
+        wait(f"{name}:{ranger}:0", f"{ranger}:0 device (laser={self.laser}; does the robot have one?)")
+        devs = [hub.node.device(f"{name}:position2d:0"), hub.node.device(f"{name}:{ranger}:0")]
+        robot = SwarmPioneer(devs, name=name, period=self.period, laser=self.laser)
+        left = max(0.5, deadline - time.monotonic())
+        try:
+            devs[1].describe(timeout=min(5.0, left))  # the beam geometry, before the first cycle
+            robot.position2d.wait_for_data(left)
+            start = self.start_pose
+            if start is None and self.simulation:
+                wait("*:simulation:0", "simulation device (simulation=true; is this a simulated robot?)")
+                sim = hub.node.device(hub.node.matches("*:simulation:0")[0])
+                start = sim.get_pose(name)
+            if start is not None:
+                n = robot.position2d.count
+                robot.position2d.set_odometry(start)
+                robot.position2d.wait_for_data(max(0.5, deadline - time.monotonic()), newer_than=n + 1)
+                self.frame = "map"
+        except (TimeoutError, RobotError, RpcError) as e:
+            raise TimeoutError(f"robot {name!r}: its devices did not answer in time ({e})") from None
+        return robot
+
+    def pose_message(self) -> SendPosition | None:
+        r = self.pioneer
+        pose = r.position2d.position if r is not None else None
+        if pose is None:
+            return None
+        return SendPosition(self.robot, pose.x, pose.y, pose.yaw, self.frame)
+
+    async def body(self) -> None:
+        """``step()`` when a broadcast or a stats message is due (not every control period: the
+        robot's cycle runs in the host's shared control loop)."""
+        loop = asyncio.get_running_loop()
+        while True:
+            await self.step()
+            due = self._next_report
+            if self.stats_every > 0:
+                due = min(due, self._next_stats)
+            await asyncio.sleep(max(0.0, due - loop.time()))
+
+    async def step(self) -> None:
+        now = asyncio.get_running_loop().time()
+        if now >= self._next_report:
+            self._next_report = max(self._next_report + self.report_every, now)
+            msg = self.pose_message() if self.broadcasting else None
+            if msg is not None and self.frame == "map" and self.pioneer is not None:
+                me = Position(msg.x, msg.y, msg.yaw)
+                self.pioneer.behaviour.heading = away_from(me, list(self.positions().values()), self.disperse_radius)
+            if msg is not None:
+                self.publish(SendPosition.SERVICE, msg, conversation=f"p{self.sent}")
+                self.sent += 1
+        if self.stats_every > 0 and now >= self._next_stats:
+            self._next_stats = max(self._next_stats + self.stats_every, now)
+            self.publish(STATS_SERVICE, self.stats())
+
+    async def killed(self) -> None:
+        hub, self._hub = self._hub, None
+        if hub is None:
+            return
+        robot = hub.remove_robot(self.robot)
+        if robot is not None:
+            robot.stop()  # a put: does not block
+        hub.detach(self)
+
+    def status(self) -> str:
+        got, want = self.delivery()
+        pct = 100.0 * got / want if want else 100.0
+        return (
+            f"{super().status()}  received {self.received} from {len(self.senders)} sender(s), "
+            f"delivery {pct:.1f} %, p99 {1000 * self.latency.quantile(0.99):.1f} ms"
+        )
+
+
+def _account_shared(hub: RobotHub, msg: Message, now: float) -> None:
+    """The hub's ``send_position`` listener: the sequence number and latency bin of a message are
+    worked out once and accounted by every swarm agent of the host that shares the subscription."""
+    lat = max(0.0, now - msg.time)
+    seq = sequence(msg.conversation)
+    i = latency_bin(lat)
+    for a in hub.agents.values():
+        if isinstance(a, SwarmAgent) and a.shared and a.id != msg.sender:
+            a._account(msg.sender, seq, i, lat)

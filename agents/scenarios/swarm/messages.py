@@ -1,0 +1,14 @@
+"""The Swarm scenario's own service (thesis 4.2.3), beyond ``send_position`` of :mod:`agents.services`.
+
+:data:`STATS_SERVICE` (``swarm_stats``): every ``stats_every`` seconds a
+:class:`~agents.scenarios.swarm.agents.SwarmAgent` publishes a dict (no schema in
+:mod:`agents.services`; the monitor checks the fields it reads): ``robot`` str, ``sent`` int
+(positions broadcast), ``received`` and ``expected`` int (numbered positions received, and the ones
+the sequence numbers say were sent: the difference is the losses), ``senders`` int, ``board`` int
+(poses on its blackboard), ``latency`` (:meth:`.metrics.LatencyHistogram.to_dict`: ``bins``,
+``counts``, ``max``, ``sum``). A ``send_position`` broadcast's conversation id is ``p<sequence>``.
+"""
+
+__all__ = ["STATS_SERVICE"]
+
+STATS_SERVICE = "swarm_stats"

@@ -1,0 +1,104 @@
+"""What the Swarm scenario measures about its messages (thesis 4.2.3: "to stress the MAS layer").
+
+Each broadcast's conversation id is ``p<sequence number>`` (:func:`sequence`), so a receiver counts
+the gaps per sender (the delivery ratio); the receive wall time minus the message's ``time`` is its
+latency, counted in the log-scale bins of :data:`LATENCY_EDGES` by a :class:`LatencyHistogram`
+that merges across agents (the monitor merges every agent's) and travels as a dict on the
+``swarm_stats`` service (:mod:`.messages`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+__all__ = ["LATENCY_EDGES", "LatencyHistogram", "latency_bin", "sequence"]
+
+#: latency histogram bin edges in seconds: 10 µs .. 100 s, 10 bins per decade (bin i is [e_i, e_i+1))
+LATENCY_EDGES = 10.0 ** (np.arange(71) / 10.0 - 5.0)
+_NBINS = LATENCY_EDGES.size - 1
+
+
+def latency_bin(latency: float) -> int:
+    """The bin of :data:`LATENCY_EDGES` that ``latency`` (seconds) falls in (clamped)."""
+    if latency <= 1e-5:
+        return 0
+    i = int((math.log10(latency) + 5.0) * 10.0)
+    return i if i < _NBINS else _NBINS - 1
+
+
+def sequence(conversation: str) -> int | None:
+    """The sequence number of a swarm broadcast's conversation id ``p<n>``, else None."""
+    if len(conversation) > 1 and conversation[0] == "p" and conversation[1:].isdigit():
+        return int(conversation[1:])
+    return None
+
+
+class LatencyHistogram:
+    """Counts of latencies in the bins of :data:`LATENCY_EDGES`, mergeable across agents."""
+
+    def __init__(self, counts: Sequence[int] | None = None, *, max_s: float = 0.0, sum_s: float = 0.0):
+        self.counts = np.zeros(_NBINS, dtype=np.int64) if counts is None else np.asarray(counts, dtype=np.int64)
+        if self.counts.shape != (_NBINS,):
+            raise ValueError(f"a latency histogram has {_NBINS} bins, got {self.counts.shape}")
+        self.max_s = float(max_s)
+        self.sum_s = float(sum_s)
+        self._pending = [0] * _NBINS  # counts not yet in ``counts`` (a list is faster to bump)
+        self._npending = 0
+
+    def add(self, latency: float) -> None:
+        self.add_bin(latency_bin(latency), latency)
+
+    def add_bin(self, i: int, latency: float) -> None:
+        """Count a latency whose bin :func:`latency_bin` gave (shared by the agents of a host)."""
+        self._pending[i] += 1
+        self._npending += 1
+        if latency > self.max_s:
+            self.max_s = latency
+        self.sum_s += latency
+
+    def _flush(self) -> None:
+        if self._npending:
+            self.counts += np.asarray(self._pending, dtype=np.int64)
+            self._pending = [0] * _NBINS
+            self._npending = 0
+
+    def merge(self, other: LatencyHistogram) -> None:
+        self._flush()
+        other._flush()
+        self.counts += other.counts
+        self.max_s = max(self.max_s, other.max_s)
+        self.sum_s += other.sum_s
+
+    @property
+    def n(self) -> int:
+        self._flush()
+        return int(self.counts.sum())
+
+    def quantile(self, q: float) -> float:
+        """The upper edge of the bin holding quantile ``q`` (seconds; an upper bound within 26 %)."""
+        n = self.n
+        if n == 0:
+            return math.nan
+        self._flush()
+        i = int(np.searchsorted(np.cumsum(self.counts), q * n, side="left"))
+        return min(float(LATENCY_EDGES[min(i, _NBINS - 1) + 1]), self.max_s)
+
+    def to_dict(self) -> dict:
+        self._flush()
+        nz = np.nonzero(self.counts)[0]
+        return {"bins": nz.tolist(), "counts": self.counts[nz].tolist(), "max": self.max_s, "sum": self.sum_s}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> LatencyHistogram:
+        h = cls(max_s=float(d.get("max", 0.0)), sum_s=float(d.get("sum", 0.0)))
+        bins, counts = d.get("bins", []), d.get("counts", [])
+        if len(bins) != len(counts):
+            raise ValueError("latency histogram: 'bins' and 'counts' differ in length")
+        for i, c in zip(bins, counts, strict=True):
+            if not (isinstance(i, int) and 0 <= i < _NBINS and isinstance(c, int) and c >= 0):
+                raise ValueError(f"latency histogram: bad bin {i!r} or count {c!r}")
+            h.counts[i] += c
+        return h

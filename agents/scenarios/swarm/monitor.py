@@ -1,0 +1,197 @@
+"""The Swarm scenario's judge (thesis 4.2.3): :class:`SwarmMonitor` reads the simulation's ground truth.
+
+Every ``sample_every`` seconds it asks the ``simulation`` device for every robot's true pose, checks
+that no two robots overlap, follows the spread (mean nearest-neighbour distance), merges the agents'
+``swarm_stats`` and after ``duration`` simulated seconds publishes the verdict as an ``outcome``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from agents.registry import agent_class
+from agents.runtime import Agent
+from agents.services import Message, Outcome
+from rsal.client import Fabric
+
+from .messages import STATS_SERVICE
+from .metrics import LatencyHistogram
+
+__all__ = ["SwarmMonitor"]
+
+log = logging.getLogger(__name__)
+
+
+@agent_class("SwarmMonitor")
+class SwarmMonitor(Agent):
+    """Judges a swarm run from the simulation's ground truth (thesis 4.2.3).
+
+    Every ``sample_every`` seconds it reads the true pose of each robot from the ``simulation``
+    device of node ``simulation``, counts overlaps (two centres closer than ``2 * radius -
+    tolerance``; ``radius`` is the robot's inscribed radius, so a count is a certain overlap) and the
+    mean nearest-neighbour distance (the spread); it merges the ``swarm_stats`` of the agents. After
+    ``duration`` simulated seconds it publishes ``Outcome("verdict", "swarm", ok=..., final=True)``:
+    ok when there was no overlap, the delivery ratio is at least ``min_delivery`` percent, the p99
+    latency at most ``max_p99_ms`` and every robot's agent reported. ``robots`` is a count (robots
+    ``<prefix>0`` .. ``<prefix>N-1``) or a list of robot ids.
+    """
+
+    capabilities = ("outcome",)
+
+    def __init__(
+        self,
+        agent_id: str,
+        *,
+        robot: str = "",
+        robots: int | Sequence[str] = 100,
+        prefix: str = "r",
+        duration: float = 60.0,
+        sample_every: float = 0.5,
+        radius: float = 0.19,
+        tolerance: float = 0.02,
+        min_delivery: float = 100.0,
+        max_p99_ms: float = 50.0,
+        simulation: str = "sim",
+        startup_timeout: float = 60.0,
+        report_every: float = 10.0,
+    ):
+        super().__init__(agent_id, period=sample_every, robot=robot)
+        if isinstance(robots, bool) or not isinstance(robots, (int, list, tuple)):
+            raise ValueError(f"agent {agent_id}: robots {robots!r} must be a count or a list of robot ids")
+        if isinstance(robots, int):
+            if robots < 1:
+                raise ValueError(f"agent {agent_id}: robots {robots!r} must be at least 1")
+            robots = [f"{prefix}{i}" for i in range(robots)]
+        if not robots or not all(isinstance(r, str) and r for r in robots):
+            raise ValueError(f"agent {agent_id}: robots must name at least one robot id")
+        if not duration > 0:
+            raise ValueError(f"agent {agent_id}: duration {duration!r} must be a positive number of seconds")
+        self.robots = list(robots)
+        self.duration = float(duration)
+        self.sample_every = float(sample_every)
+        self.min_dist = 2.0 * float(radius) - float(tolerance)
+        self.min_delivery = float(min_delivery)
+        self.max_p99_ms = float(max_p99_ms)
+        self.sim_node = simulation
+        self.startup_timeout = float(startup_timeout)
+        self.report_every = float(report_every)
+        self.stats: dict[str, dict] = {}  # sender -> its latest swarm_stats body
+        self.samples = 0
+        self.overlaps = 0  # pairs found overlapping, summed over samples
+        self.closest = math.inf  # smallest centre distance seen, m
+        self.spread: list[tuple[float, float]] = []  # (sim time, mean nearest-neighbour distance)
+        self.verdict: Outcome | None = None
+        self.fabric: Fabric | None = None
+
+    async def created(self) -> None:
+        self.subscribe(STATS_SERVICE, self._on_stats)
+
+    def _on_stats(self, msg: Message) -> None:
+        if isinstance(msg.body, dict) and isinstance(msg.body.get("latency"), dict):
+            self.stats[msg.sender] = msg.body
+
+    def _simulation(self):  # a worker thread
+        self.fabric = Fabric(self._require_host().session, own_session=False)
+        node = self.fabric.node(f"{self.sim_node}:simulation:0")
+        try:
+            node.wait_for(f"{self.sim_node}:simulation:0", 1, self.startup_timeout)
+            sim = node.device(f"{self.sim_node}:simulation:0")
+            sim.wait_for_data(self.startup_timeout)
+        except TimeoutError:
+            raise TimeoutError(
+                f"{self.id}: no simulation device {self.sim_node}:simulation:0 within {self.startup_timeout:g} s "
+                "(is 'rsal sim' running and reachable?)"
+            ) from None
+        finally:
+            node.close()
+        return sim
+
+    async def poses(self, sim) -> np.ndarray:
+        """(n, 2) true positions of the watched robots (one concurrent get_pose per robot)."""
+        futs = [asyncio.wrap_future(sim.rpc_async("get_pose", name=r)) for r in self.robots]
+        replies = await asyncio.gather(*futs)
+        return np.array([r["pose"][:2] for r in replies], dtype=float)
+
+    def check(self, xy: np.ndarray, t: float) -> None:
+        """Account one ground-truth sample: overlaps, closest pair, spread."""
+        from scipy.spatial import cKDTree
+
+        self.samples += 1
+        if len(xy) < 2:
+            return
+        tree = cKDTree(xy)
+        self.overlaps += len(tree.query_pairs(self.min_dist))
+        d, _ = tree.query(xy, k=2)
+        nn = d[:, 1]
+        self.closest = min(self.closest, float(nn.min()))
+        self.spread.append((t, float(nn.mean())))
+
+    def merged(self) -> tuple[int, int, LatencyHistogram, int]:
+        """(received, expected, latency histogram, reporting agents) over the latest stats."""
+        got = want = 0
+        hist = LatencyHistogram()
+        for s in self.stats.values():
+            try:
+                got += int(s.get("received", 0))
+                want += int(s.get("expected", 0))
+                hist.merge(LatencyHistogram.from_dict(s["latency"]))
+            except (TypeError, ValueError) as e:
+                log.warning("%s: ignored bad swarm_stats: %s", self.id, e)
+        return got, want, hist, len(self.stats)
+
+    def judge(self, elapsed: float) -> Outcome:
+        got, want, hist, reporting = self.merged()
+        delivery = 100.0 * got / want if want else 0.0
+        p99 = 1000.0 * hist.quantile(0.99) if hist.n else math.inf
+        n = len(self.robots)
+        problems = []
+        if self.overlaps:
+            problems.append(f"{self.overlaps} overlap(s), closest {self.closest:.2f} m")
+        if delivery < self.min_delivery:
+            problems.append(f"delivery {delivery:.2f} % < {self.min_delivery:g} %")
+        if not p99 <= self.max_p99_ms:
+            problems.append(f"p99 latency {p99:.0f} ms > {self.max_p99_ms:g} ms")
+        if reporting < n:
+            problems.append(f"stats from {reporting} of {n} agents")
+        s0 = self.spread[0][1] if self.spread else math.nan
+        s1 = self.spread[-1][1] if self.spread else math.nan
+        text = (
+            f"{n} robots {elapsed:.0f} s: {'no overlap' if not self.overlaps else f'{self.overlaps} overlap(s)'}, "
+            f"delivery {delivery:.1f} % ({got}/{want}), p99 latency {p99:.0f} ms, spread {s0:.1f} -> {s1:.1f} m"
+        )
+        if problems:
+            text += " -- " + "; ".join(problems)
+        return Outcome("verdict", "swarm", text, ok=not problems, final=True)
+
+    async def body(self) -> None:
+        sim = await asyncio.to_thread(self._simulation)
+        loop = asyncio.get_running_loop()
+        t0 = sim.latest.t
+        next_report = loop.time() + self.report_every
+        while True:
+            started = loop.time()
+            t = sim.latest.t
+            try:
+                xy = await self.poses(sim)
+            except Exception as e:  # a slow or restarting simulator: skip this sample
+                log.warning("%s: ground-truth sample failed: %s", self.id, e)
+            else:
+                self.check(xy, t)
+            if t - t0 >= self.duration:
+                self.verdict = self.judge(t - t0)
+                self.publish(Outcome.SERVICE, self.verdict)
+                log.info("%s: %s", self.id, self.verdict.text)
+                return
+            if loop.time() >= next_report:
+                next_report += self.report_every
+                log.info("%s: %s", self.id, self.judge(t - t0).text)
+            await asyncio.sleep(max(0.0, self.sample_every - (loop.time() - started)))
+
+    async def killed(self) -> None:
+        if self.fabric is not None:
+            self.fabric.close()

@@ -1,0 +1,115 @@
+"""The per-host robot hub (agents/hub.py) over real Zenoh sessions on loopback: one hub per host,
+one ``send_position`` subscription feeding the shared board and each listener once per message,
+one control loop running the robots' cycles, closed by the last agent to detach."""
+
+from __future__ import annotations
+
+import pytest
+
+from agents.hub import RobotHub
+from agents.runtime import Agent, AgentHost
+from agents.services import SendPosition
+from rsal.transport import TransportArgs, open_session
+from tests.conftest import LoopThread, free_port, wait_until
+
+
+@pytest.fixture
+def net():
+    """A host on a listening session and a host on a connecting one (free loopback port)."""
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    a = open_session(TransportArgs(listen=[ep]))
+    b = open_session(TransportArgs(connect=[ep]))
+    lt = LoopThread()
+    hosts = [AgentHost(a), AgentHost(b)]
+    for h in hosts:
+        lt.run(h.__aenter__())
+    yield lt, hosts[0], hosts[1]
+    for h in hosts:
+        lt.run(h.stop())
+    lt.close()
+    b.close()
+    a.close()
+
+
+class Member(Agent):
+    """Joins its host's hub in created() and leaves it in killed()."""
+
+    def __init__(self, agent_id: str, listener=None):
+        super().__init__(agent_id, period=0.05)
+        self.listener = listener
+        self.hub: RobotHub | None = None
+
+    async def created(self) -> None:
+        self.hub = RobotHub.attach(self._require_host(), self, period=0.02, board_timeout=7.0)
+        self.hub.listen(self.listener)
+
+    async def killed(self) -> None:
+        self.hub.detach(self)
+
+
+class CountingRobot:
+    """What the control loop needs of a robot: ``name``, ``update()``, ``updates``."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.updates = 0
+        self.calls = 0
+
+    def update(self) -> None:
+        self.calls += 1
+        if self.calls == 2:
+            raise RuntimeError("a failing cycle is logged, not fatal")
+
+
+def test_one_hub_per_host_fans_each_message_out_once(net):
+    lt, host, other = net
+    heard = []
+
+    def listener(hub, msg, now):
+        heard.append((hub, msg.sender, msg.body.robot, now >= msg.time - 1.0))
+
+    a, b = Member("a", listener), Member("b", listener)  # the same listener twice: called once
+    lt.run(host.start(a))
+    lt.run(host.start(b))
+    assert a.hub is b.hub and set(a.hub.agents) == {"a", "b"}
+    assert a.hub.board_timeout == 7.0
+    talker = Agent("talker")
+    lt.run(other.start(talker))
+    sent = 0
+
+    def arrived() -> bool:
+        nonlocal sent
+        if not heard:  # the subscription may still be on its way: publish again until one arrives
+            talker.publish(SendPosition.SERVICE, SendPosition("r9", 1.0, 2.0, 0.5, "map"))
+            sent += 1
+        return bool(heard)
+
+    wait_until(arrived, 10.0, "a send_position message reaches the hub")
+    wait_until(lambda: len(heard) >= sent, 5.0, "every message sent reaches the listener")
+    assert len(heard) == sent  # once per message, not once per agent
+    assert heard[0] == (a.hub, "talker", "r9", True)
+    pose = a.hub.board.get("r9").position
+    assert (pose.x, pose.y, pose.yaw) == (1.0, 2.0, 0.5)
+
+
+def test_the_control_loop_runs_each_robot_until_removed_and_the_last_detach_closes(net):
+    lt, host, _ = net
+    a, b = Member("a"), Member("b")
+    lt.run(host.start(a))
+    lt.run(host.start(b))
+    hub = a.hub
+    r1, r2 = CountingRobot("r1"), CountingRobot("r2")
+    hub.add_robot("r1", r1)
+    hub.add_robot("r2", r2)
+    wait_until(lambda: r1.updates >= 5 and r2.updates >= 5, 10.0, "both robots cycle in the shared loop")
+    assert r1.calls == r1.updates + 1  # the failing cycle did not stop the loop
+    assert hub.remove_robot("r1") is r1 and hub.remove_robot("r1") is None
+    n = r1.calls
+    wait_until(lambda: r2.updates >= n + 5, 10.0, "the other robot keeps cycling")
+    assert r1.calls == n
+    assert hub.cycles > 0 and 0.0 <= hub.load() < 1.0
+    lt.run(host.kill(a.id))
+    assert RobotHub._hubs.get(id(host)) is hub  # b still uses it
+    lt.run(host.kill(b.id))
+    assert id(host) not in RobotHub._hubs
+    wait_until(lambda: hub._task.done(), 5.0, "the control loop ends with the hub")
