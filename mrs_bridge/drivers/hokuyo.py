@@ -53,7 +53,6 @@ Parameters::
 from __future__ import annotations
 
 import collections
-import difflib
 import logging
 import math
 import threading
@@ -66,8 +65,8 @@ import numpy as np
 from rsal.errors import RsalError
 from rsal.msgs import ErrorCode, RangerData, RpcError
 
-from ..config import ConfigError
 from ..driver import Driver, register
+from ..params import param, parse_params
 
 __all__ = [
     "MODELS",
@@ -386,7 +385,23 @@ class _Link(threading.Thread):
 
 
 # ---------------------------------------------------------------------------- the driver
-PARAMS = ("port", "baud", "model", "pose", "cluster", "min_angle", "max_angle", "timeout", "reconnect")
+@dataclass(frozen=True)
+class HokuyoParams:
+    """The ``hokuyo`` driver's parameters (module docstring)."""
+
+    port: str = param(missing='hokuyo needs port = "/dev/ttyACM0" (the sensor\'s serial device)')
+    baud: int = param(115200, min=300, max=1_000_000)
+    model: str = param("URG-04LX", choices=tuple(MODELS))
+    pose: tuple[float, float, float] = param((0.0, 0.0, 0.0), expect="[x, y, yaw_degrees]")
+    cluster: int = param(1, min=1, max=99)
+    min_angle: float | None = param(None, min=-180.0, max=180.0, expect="an angle in [-180, 180] degrees")
+    max_angle: float | None = param(None, min=-180.0, max=180.0, expect="an angle in [-180, 180] degrees")
+    timeout: float = param(1.0, gt=0.0, expect="a positive number of seconds")
+    reconnect: float = param(0.5, gt=0.0, expect="a positive number of seconds")
+
+    def __post_init__(self) -> None:
+        if self.min_angle is not None and self.max_angle is not None and self.min_angle >= self.max_angle:
+            raise ValueError("min_angle must be smaller than max_angle")
 
 
 @register("hokuyo", "hokuyo_aist", "urglaser")
@@ -397,38 +412,13 @@ class HokuyoDriver(Driver):
 
     def __init__(self, cfg, server):
         super().__init__(cfg, server)
-        where = cfg.where
-        for k in cfg.params:
-            if k not in PARAMS:
-                close = difflib.get_close_matches(k, PARAMS, n=1)
-                hint = f"did you mean {close[0]!r}?" if close else f"known: {', '.join(PARAMS)}"
-                raise ConfigError(f"{where}: unknown parameter {k!r}; {hint}")
-        port = cfg.param("port")
-        if not isinstance(port, str) or not port:
-            raise ConfigError(f'{where}: hokuyo needs port = "/dev/ttyACM0" (the sensor\'s serial device)')
-        self.port = port
-        self.baud = self._int("baud", 115200, 300, 1_000_000)
-        name = cfg.param("model", "URG-04LX")
-        if name not in MODELS:
-            close = difflib.get_close_matches(str(name), list(MODELS), n=1)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
-            raise ConfigError(f"{where}: model = {name!r} must be one of {', '.join(MODELS)}{hint}")
-        self.model = MODELS[name]
-        pose = cfg.param("pose", [0.0, 0.0, 0.0])
-        if (
-            not isinstance(pose, list)
-            or len(pose) != 3
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in pose)
-        ):
-            raise ConfigError(f"{where}: pose = {pose!r} must be [x, y, yaw_degrees]")
-        self.pose = [float(pose[0]), float(pose[1]), math.radians(pose[2])]
-        self.cluster = self._int("cluster", 1, 1, 99)
-        self.min_angle = self._deg("min_angle")
-        self.max_angle = self._deg("max_angle")
-        if self.min_angle is not None and self.max_angle is not None and self.min_angle >= self.max_angle:
-            raise ConfigError(f"{where}: min_angle must be smaller than max_angle")
-        self.timeout = self._num("timeout", 1.0)
-        self.reconnect = self._num("reconnect", 0.5)
+        p = self.settings = parse_params(HokuyoParams, cfg)
+        self.port, self.baud, self.cluster = p.port, p.baud, p.cluster
+        self.model = MODELS[p.model]
+        self.pose = [p.pose[0], p.pose[1], math.radians(p.pose[2])]
+        self.min_angle = None if p.min_angle is None else math.radians(p.min_angle)
+        self.max_angle = None if p.max_angle is None else math.radians(p.max_angle)
+        self.timeout, self.reconnect = p.timeout, p.reconnect
         self.online = False  # tokens come when the sensor answers
         self.params = self.model
         self.info: dict[str, str] = {}
@@ -437,27 +427,6 @@ class HokuyoDriver(Driver):
         self.link: _Link | None = None
         self._geom: tuple[float, float, int] | None = None  # angle_min, angle_step, count
         self._last_warn = 0.0
-
-    # -- parameter helpers
-    def _num(self, key: str, default: float) -> float:
-        v = self.cfg.param(key, default)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-            raise ConfigError(f"{self.cfg.where}: {key} = {v!r} must be a positive number of seconds")
-        return float(v)
-
-    def _int(self, key: str, default: int, lo: int, hi: int) -> int:
-        v = self.cfg.param(key, default)
-        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-            raise ConfigError(f"{self.cfg.where}: {key} = {v!r} must be an integer in [{lo}, {hi}]")
-        return v
-
-    def _deg(self, key: str) -> float | None:
-        v = self.cfg.param(key)
-        if v is None:
-            return None
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not -180.0 <= v <= 180.0:
-            raise ConfigError(f"{self.cfg.where}: {key} = {v!r} must be an angle in [-180, 180] degrees")
-        return math.radians(v)
 
     def steps(self, pp: ScipParams) -> tuple[int, int]:
         """The first and last step to measure: the sensor's range, cut to min/max_angle."""

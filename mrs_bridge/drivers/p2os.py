@@ -68,13 +68,12 @@ lift as a one-joint array, Player's ``lift::actarray:0``).
 from __future__ import annotations
 
 import collections
-import difflib
 import math
 import struct
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -101,6 +100,7 @@ from rsal.msgs import (
 from ..baseguard import ESTOP_OPS, BaseGuard
 from ..config import ConfigError
 from ..driver import Driver, OutOfRange, register
+from ..params import param, parse_params
 
 __all__ = [
     "P2osDriver",
@@ -509,7 +509,20 @@ class _Link(threading.Thread):
 
 
 # ---------------------------------------------------------------------------- the driver
-PARAMS = ("port", "baud", "model", "pulse", "reconnect", "timeout", "sonars", "cmd_timeout")
+@dataclass(frozen=True)
+class P2osParams:
+    """The ``p2os`` driver's parameters (module docstring)."""
+
+    port: str = param(doc="the robot's serial device", example="/dev/ttyS0")
+    baud: Literal[9600, 19200, 38400, 57600, 115200] = param(9600)
+    model: str | None = param(None, choices=tuple(MODELS))
+    pulse: float = param(0.5, min=0.05, max=1.5, unit="seconds")
+    reconnect: float = param(1.0, min=0.05, max=60.0, unit="seconds")
+    timeout: float = param(1.0, min=0.2, max=30.0, unit="seconds")
+    sonars: Literal[8, 16] | None = param(None, expect="8 or 16 (transducers fitted)")
+    cmd_timeout: Any = param(None, doc="s, read by the base guard (mrs_bridge.baseguard)")
+
+
 WARN_INTERVAL = 5.0
 POWER_EMPTY, POWER_FULL = 10.5, 13.0  # V: 0 % and 100 % of a 12 V lead-acid pack
 
@@ -531,38 +544,17 @@ class P2osDriver(Driver):
 
     def __init__(self, cfg, server):
         super().__init__(cfg, server)
-        for k in cfg.params:
-            if k not in PARAMS:
-                close = difflib.get_close_matches(k, PARAMS, n=1)
-                hint = f"did you mean {close[0]!r}?" if close else f"known: {', '.join(PARAMS)}"
-                raise ConfigError(f"{cfg.where}: unknown parameter {k!r}; {hint}")
+        p = self.settings = parse_params(P2osParams, cfg)
         try:
             import serial  # noqa: F401
         except ImportError:
             raise ConfigError(
                 f"{cfg.where}: the p2os driver needs pyserial; install it with: pip install pyserial"
             ) from None
-        port = cfg.param("port")
-        if not isinstance(port, str) or not port:
-            raise ConfigError(f"{cfg.where}: needs 'port', the robot's serial device (e.g. port = \"/dev/ttyS0\")")
-        self.port = port
-        baud = cfg.param("baud", 9600)
-        if isinstance(baud, bool) or not isinstance(baud, int) or baud not in (9600, 19200, 38400, 57600, 115200):
-            raise ConfigError(f"{cfg.where}: baud = {baud!r} must be one of 9600, 19200, 38400, 57600, 115200")
-        self.baud = baud
-        self.pulse = self._num("pulse", 0.5, 0.05, 1.5)
-        self.reconnect = self._num("reconnect", 1.0, 0.05, 60.0)
-        self.timeout = self._num("timeout", 1.0, 0.2, 30.0)
-        m = cfg.param("model")
-        if m is not None and m not in MODELS:
-            close = difflib.get_close_matches(str(m), list(MODELS), n=1)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
-            raise ConfigError(f"{cfg.where}: model = {m!r} must be one of {', '.join(MODELS)}{hint}")
-        self.forced_model = MODELS[m] if m is not None else None
-        s = cfg.param("sonars")
-        if s is not None and (isinstance(s, bool) or s not in (8, 16)):
-            raise ConfigError(f"{cfg.where}: sonars = {s!r} must be 8 or 16 (transducers fitted)")
-        self.sonar_override = s
+        self.port, self.baud = p.port, p.baud
+        self.pulse, self.reconnect, self.timeout = p.pulse, p.reconnect, p.timeout
+        self.forced_model = MODELS[p.model] if p.model is not None else None
+        self.sonar_override = p.sonars
         for a in cfg.provides:
             if a.index != 0:
                 raise ConfigError(
@@ -584,12 +576,6 @@ class P2osDriver(Driver):
         self._lost_reason = ""
         self._t0 = time.monotonic()
         self.guard = BaseGuard.for_driver(self, cfg.provides[0].node)
-
-    def _num(self, key: str, default: float, lo: float, hi: float) -> float:
-        v = self.cfg.param(key, default)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
-            raise ConfigError(f"{self.cfg.where}: {key} = {v!r} must be a number of seconds in [{lo:g}, {hi:g}]")
-        return float(v)
 
     # ------------------------------------------------------------------ lifecycle
     def setup(self) -> None:
