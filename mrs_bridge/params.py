@@ -26,7 +26,8 @@ line ``"<file>: driver #n (name): <what>"`` naming the key and a fix:
   finite unless ``finite=False``), ``bool``, ``str``, ``Path`` (relative to the config file),
   ``tuple[float, ...]`` / ``tuple[float, float, float]`` / ``tuple[str, ...]`` from TOML lists,
   ``Literal[...]`` choices (and ``choices=`` for choices known at run time) with "did you mean" for
-  strings, ``X | None`` (``None`` = not given), ``Any`` (passed as it is);
+  strings, ``X | None`` (``None`` = not given), ``Any`` (passed as it is); a field named after a
+  Python keyword with a trailing ``_`` (``global_``) reads the key without it (``global``);
 - ranges from the field's metadata: ``min``/``max`` (inclusive), ``gt``/``lt`` (exclusive);
 - the dataclass's own ``__post_init__`` for checks across keys: its ``ValueError`` text is prefixed
   with the block.
@@ -42,6 +43,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import json
+import keyword
 import math
 import types
 import typing
@@ -125,7 +127,7 @@ def parse_params(
         raw, where, base = cfg, where or f"<{cls.__name__}>", Path.cwd()
     hints = typing.get_type_hints(cls)
     fields = [f for f in dataclasses.fields(cls) if f.init]
-    names = [f.name for f in fields]
+    names = [_key(f) for f in fields]
     ignored = getattr(cls, "IGNORED", ())
     extra: dict[str, Any] = {}
     for k in raw:
@@ -141,12 +143,12 @@ def parse_params(
         raise ConfigError(f"{where}: {unknown_key(k, names)}")
     kw: dict[str, Any] = {}
     for f in fields:
-        meta = f.metadata.get("param", {})
-        if f.name not in raw:
+        meta, key = f.metadata.get("param", {}), _key(f)
+        if key not in raw:
             if f.default is _MISSING and f.default_factory is _MISSING:
-                raise ConfigError(f"{where}: {_missing(f.name, meta)}")
+                raise ConfigError(f"{where}: {_missing(key, meta)}")
             continue
-        kw[f.name] = _convert(f.name, raw[f.name], hints[f.name], meta, base, where)
+        kw[f.name] = _convert(key, raw[key], hints[f.name], meta, base, where)
     try:
         obj = cls(**kw)
     except ConfigError:
@@ -164,7 +166,7 @@ def describe_params(cls: type) -> list[dict[str, Any]]:
         meta = f.metadata.get("param", {})
         rows.append(
             {
-                "name": f.name,
+                "name": _key(f),
                 "type": _type_name(hints[f.name]),
                 "default": None if f.default is _MISSING else f.default,
                 "required": f.default is _MISSING and f.default_factory is _MISSING,
@@ -176,6 +178,11 @@ def describe_params(cls: type) -> list[dict[str, Any]]:
 
 
 # ---------------------------------------------------------------------------- conversion
+def _key(f: dataclasses.Field) -> str:
+    """The configuration key of a field: its name, without the ``_`` of a Python keyword (``global_``)."""
+    return f.name[:-1] if f.name.endswith("_") and keyword.iskeyword(f.name[:-1]) else f.name
+
+
 def _missing(key: str, meta: Mapping[str, Any]) -> str:
     if meta.get("missing"):
         return meta["missing"]
