@@ -49,7 +49,7 @@ What every planner shares, and therefore lives here:
   swept-corridor test (:func:`corridor_clear`), all vectorised with numpy over the points.
 
 Units inside the objects are SI (metres, radians, seconds). Closed-loop runs on the simulator are
-in :mod:`mrs_bridge.nav.localsim`.
+in :mod:`mrs_bridge.rigs.localsim`.
 """
 
 from __future__ import annotations
