@@ -61,8 +61,8 @@ def success(trials: int, planners: list[str], seed: int) -> None:
 
 def capacity(n: int, sim_seconds: float, seed: int, nav: bool) -> dict:
 
-    from mrs_bridge.rigs.stacksim import RobotStack, free_pose, grid_of
     from mrs_bridge.nav.wavefront import PlanError, Wavefront
+    from mrs_bridge.rigs.stacksim import RobotStack, free_pose, grid_of
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from bench_simulator import build_world

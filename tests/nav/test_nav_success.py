@@ -31,8 +31,8 @@ def test_unreachable_goal_is_invalid_at_once():
     import math
     import time
 
-    from mrs_bridge.rigs.stacksim import RobotStack, grid_of, run_goal
     from mrs_bridge.nav.wavefront import Wavefront
+    from mrs_bridge.rigs.stacksim import RobotStack, grid_of, run_goal
     from simulator.loader import load_world
     from simulator.world import World
 
