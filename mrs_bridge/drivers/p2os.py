@@ -21,6 +21,9 @@ most every 5 s.
 Provides ``position2d`` (odometry, VelocityCmd), ``sonar`` or ``ranger`` (the sonar ring),
 ``power``, ``gripper`` (GripperCmd), ``dio`` (digital in/out, DioCmd) and ``actarray`` (the gripper
 lift as a one-joint array, Player's ``lift::actarray:0``).
+
+The module is over 500 lines because one Pioneer serves seven interfaces: their publication,
+commands and rpcs are the bulk, each short; the protocol itself is in :mod:`mrs_bridge.hw.p2os`.
 """
 
 from __future__ import annotations
