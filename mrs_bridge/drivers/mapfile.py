@@ -86,12 +86,18 @@ class MapfileDriver(Driver):
         return self.info()
 
 
+@dataclass(frozen=True)
+class SimMapParams:
+    """``simmap`` has no parameters (the map is the simulation's floorplan)."""
+
+
 @register("simmap")
 class SimMapDriver(MapfileDriver):
     """The floorplan of the in-process simulation served as a map (``rsal sim`` adds it)."""
 
     def __init__(self, cfg, server):
         Driver.__init__(self, cfg, server)
+        parse_params(SimMapParams, cfg)  # no parameters: a stray key is a mistake, named
         world = server.shared.get("simulator.world")
         if world is None or world.grid is None:
             raise ConfigError(f"{cfg.where}: there is no simulated floorplan to serve")
