@@ -67,7 +67,7 @@ class Baseline(LocalPlanner):
 
 def scans(n: int, seed: int) -> list[tuple[tuple[float, float, float], np.ndarray]]:
     """``n`` robot-frame URG scans (max-range readings removed) from random free floor poses."""
-    from mrs_bridge.nav.localsim import laser_points
+    from mrs_bridge.rigs.localsim import laser_points
     from simulator import load_world
     from simulator.presets import box
     from simulator.world import World
@@ -122,7 +122,7 @@ def step_cost(cls: type[LocalPlanner], data, warmup: int, count: int, seed: int)
 
 
 def trials(cls: type[LocalPlanner], n: int, others: int, params: dict, seed: int) -> dict:
-    from mrs_bridge.nav.localsim import draw_trial, run_trial
+    from mrs_bridge.rigs.localsim import draw_trial, run_trial
     from simulator import load_world
     from simulator.world import World
 

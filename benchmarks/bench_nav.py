@@ -3,7 +3,7 @@
 **Success** (``--trials``, default 20 per planner): random reachable start/goal pairs 4-12 m apart
 for r0 on ``maps/floor.world`` with two other Pioneers moving around the middle of each route
 (obstacles not on the map), AMCL + Wavefront + each of VFH, ND, SND exactly as ``rsal sim --nav``
-configures them (:func:`mrs_bridge.nav.stacksim.goal_trials`). Reports reached / collided /
+configures them (:func:`mrs_bridge.rigs.stacksim.goal_trials`). Reports reached / collided /
 invalid / timed out, mean time and the worst localization error. Target (issue): >= 95 % reached
 with no collision for each planner.
 
@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 
 def success(trials: int, planners: list[str], seed: int) -> None:
-    from mrs_bridge.nav.stacksim import goal_trials
+    from mrs_bridge.rigs.stacksim import goal_trials
 
     for local in planners:
         t0 = time.perf_counter()
@@ -61,8 +61,8 @@ def success(trials: int, planners: list[str], seed: int) -> None:
 
 def capacity(n: int, sim_seconds: float, seed: int, nav: bool) -> dict:
 
-    from mrs_bridge.nav.stacksim import RobotStack, free_pose, grid_of
     from mrs_bridge.nav.wavefront import PlanError, Wavefront
+    from mrs_bridge.rigs.stacksim import RobotStack, free_pose, grid_of
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from bench_simulator import build_world

@@ -24,7 +24,6 @@ parameter, with Player's parameter names. Errors name the file, the driver block
 
 from __future__ import annotations
 
-import difflib
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -121,8 +120,10 @@ def parse_config(
         if not isinstance(name, str) or not name:
             raise ConfigError(f"{where}: missing 'name' (the driver type, e.g. name = \"sim\")")
         if known_drivers is not None and name not in known_drivers:
-            close = difflib.get_close_matches(name, known_drivers, n=1)
-            hint = f"; did you mean {close[0]!r}?" if close else f"; known drivers: {', '.join(sorted(known_drivers))}"
+            from .params import did_you_mean  # params imports this module
+
+            close = did_you_mean(name, known_drivers)
+            hint = f"; did you mean {close!r}?" if close else f"; known drivers: {', '.join(sorted(known_drivers))}"
             raise ConfigError(f"{where}: unknown driver {name!r}{hint}")
         dnode = b.get("node", node)
         provides = _devices(b.get("provides", []), dnode, where, "provides")

@@ -61,6 +61,7 @@ from rsal.msgs import (
 
 from .config import ConfigError, DriverConfig, ServerConfig
 from .driver import DRIVERS, Deferred, Driver, OutOfRange
+from .params import did_you_mean
 
 __all__ = ["DeviceServer", "ServerError"]
 
@@ -188,10 +189,8 @@ class DeviceServer:
         for dc in self.config.drivers:
             cls = self.registry.get(dc.name)
             if cls is None:
-                import difflib
-
-                close = difflib.get_close_matches(dc.name, list(self.registry), n=1)
-                hint = f"; did you mean {close[0]!r}?" if close else f"; known: {', '.join(sorted(self.registry))}"
+                close = did_you_mean(dc.name, self.registry)
+                hint = f"; did you mean {close!r}?" if close else f"; known: {', '.join(sorted(self.registry))}"
                 raise ConfigError(f"{dc.where}: unknown driver {dc.name!r}{hint}")
             try:
                 drv = cls(dc, self)

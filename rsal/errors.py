@@ -12,7 +12,7 @@ category, the class also derives from it, so ``except ValueError`` still works::
     ├── RobotError (ValueError)                 rsal.robot: a robot cannot be built from these devices
     ├── ConfigError (ValueError)                mrs_bridge.config: a driver configuration file is wrong
     ├── ServerError (RuntimeError)              mrs_bridge.server: the server cannot start or run
-    ├── ScipError (ValueError)                  mrs_bridge.drivers.hokuyo: a malformed SCIP 2.0 frame
+    ├── ScipError (ValueError)                  mrs_bridge.hw.scip: a malformed SCIP 2.0 frame
     ├── PlanError                               mrs_bridge.nav.wavefront: no plan (outside the map, ...)
     ├── ScenarioError (ValueError)              agents.scenario: a scenario file is wrong (file:line)
     ├── HostError (ValueError)                  agents.hostproc: an agent host's description is wrong

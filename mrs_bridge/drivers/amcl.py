@@ -38,6 +38,8 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -57,13 +59,25 @@ from rsal.msgs import (
 
 from ..config import ConfigError
 from ..driver import Driver, register
+from ..params import param, parse_params
 
 __all__ = ["AmclDriver"]
 
-IGNORED = ("odom_init", "enable_gui", "laser_range_bad", "laser_range_var", "odom_drift", "alwayson")
-DRIVER_KEYS = ("laser_pose", "laser_range_max", "global")
 RANGE_IFACES = ("laser", "ranger", "sonar")
 LOCALIZE_PERIOD = 0.5  # s: localize data at least this often, even without filter updates
+
+
+@dataclass(frozen=True)
+class AmclDriverParams:
+    """The ``amcl`` driver's own parameters; every other key is the filter's (``AmclParams``)."""
+
+    IGNORED: ClassVar[tuple[str, ...]] = (
+        "odom_init", "enable_gui", "laser_range_bad", "laser_range_var", "odom_drift", "alwayson",
+    )  # fmt: skip
+
+    laser_pose: tuple[float, float, float] | None = param(None, expect="[x m, y m, yaw deg]")
+    laser_range_max: float | None = param(None, gt=0.0, expect="a positive number of metres")
+    global_: bool = param(False, doc="start with global localization")
 
 
 @register("amcl")
@@ -85,24 +99,12 @@ class AmclDriver(Driver):
                 'e.g. requires = ["odometry::r0:position2d:0", "r0:laser:0", "r0:map:0"]'
             )
         self.odom_addr, self.range_addr, self.map_addr = pos[0].without_key(), rng[0].without_key(), maps[0]
-        raw = dict(cfg.params)
-        for k in IGNORED:
-            if k in raw:
-                raw.pop(k)
-                self.log.warning("%s: Player option %r has no effect here; remove it", cfg.where, k)
-        self.laser_pose = None
-        if "laser_pose" in raw:
-            lp = raw.pop("laser_pose")
-            if not (isinstance(lp, list) and len(lp) == 3 and all(isinstance(v, int | float) for v in lp)):
-                raise ConfigError(f"{cfg.where}: laser_pose = {lp!r} must be [x m, y m, yaw deg]")
-            self.laser_pose = (float(lp[0]), float(lp[1]), math.radians(lp[2]))
-        self.range_cap = None
-        if "laser_range_max" in raw:
-            v = raw.pop("laser_range_max")
-            if isinstance(v, bool) or not isinstance(v, int | float) or not v > 0:
-                raise ConfigError(f"{cfg.where}: laser_range_max = {v!r} must be a positive number of metres")
-            self.range_cap = float(v)
-        self.start_global = bool(raw.pop("global", False))
+        p, raw = parse_params(AmclDriverParams, cfg, rest=True, log=self.log)  # the rest: the filter's
+        self.settings = p
+        lp = p.laser_pose
+        self.laser_pose = None if lp is None else (lp[0], lp[1], math.radians(lp[2]))
+        self.range_cap = p.laser_range_max
+        self.start_global = p.global_
         # Player's units in the file -> SI
         if "init_pose" in raw and _is_vec(raw["init_pose"], 3):
             x, y, a = raw["init_pose"]

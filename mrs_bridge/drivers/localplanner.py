@@ -31,6 +31,8 @@ presses the base's own emergency stop, and refuses goals and velocities until re
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Any
 
 from rsal.interfaces import decode_as
 from rsal.interfaces.ranger import RangerGeometry
@@ -39,12 +41,20 @@ from rsal.msgs import ErrorCode, GoalCmd, MessageError, Position2dData, RangerDa
 from ..baseguard import ESTOP_OPS, BaseGuard
 from ..config import ConfigError
 from ..driver import Driver, OutOfRange, register
+from ..params import param, parse_params
 
 __all__ = ["LocalPlannerDriver"]
 
 RANGE_IFACES = ("laser", "ranger", "sonar")
 STALE_SCAN = 1.0  # s (wall): a range device silent this long no longer counts (its points are dropped)
 REFRESH = 0.2  # s (wall): while driving to a goal, the base's command is re-sent at least this often
+
+
+@dataclass(frozen=True)
+class LocalPlannerParams:
+    """The driver's own keys; the algorithm's parameters are the rest (``LocalPlanner.PARAMS``)."""
+
+    cmd_timeout: Any = param(None, doc="s, read by the base guard (mrs_bridge.baseguard)")
 
 
 class LocalPlannerDriver(Driver):
@@ -66,7 +76,9 @@ class LocalPlannerDriver(Driver):
         self.base = bases[0].without_key()
         self.out = cfg.provides[0]
         self.guard = BaseGuard.for_driver(self, self.out.node)
-        self.params = {k: v for k, v in cfg.params.items() if k != "cmd_timeout"}
+        # cmd_timeout is the base guard's; every other key is the algorithm's (mrs_bridge.nav.local
+        # checks them against its PARAMS table: ranges, units, "did you mean")
+        self.settings, self.params = parse_params(LocalPlannerParams, cfg, rest=True)
         try:  # validate now, so a bad parameter is a config error at start
             self.planner = self.algorithm(dict(self.params))
         except ValueError as e:

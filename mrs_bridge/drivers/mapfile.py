@@ -10,14 +10,33 @@ every few seconds so late subscribers learn of it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+
 import numpy as np
 
 from rsal.msgs import MapData
 
 from ..config import ConfigError
 from ..driver import Driver, register
+from ..params import param, parse_params
 
 __all__ = ["MapfileDriver"]
+
+
+@dataclass(frozen=True)
+class MapfileParams:
+    """The ``mapfile`` driver's parameters (module docstring)."""
+
+    filename: Path = param(doc="the map bitmap", example="../maps/floor.png")
+    resolution: float = param(0.05, gt=0.0, expect="positive metres per pixel")
+    origin: tuple[float, ...] | None = param(None, expect="[x, y] in metres")
+    negate: bool = param(False)
+    occupied_thresh: float = param(0.5, min=0.0, max=1.0)
+
+    def __post_init__(self) -> None:
+        if self.origin is not None and len(self.origin) < 2:
+            raise ValueError(f"origin = {list(self.origin)!r} must be [x, y] in metres")
 
 
 @register("mapfile")
@@ -31,27 +50,17 @@ class MapfileDriver(Driver):
         from simulator import SimulatorError
         from simulator.gridmap import GridMap
 
-        path = cfg.path_param("filename")
-        if path is None:
-            raise ConfigError(f"{cfg.where}: needs 'filename', the map bitmap")
+        p = self.settings = parse_params(MapfileParams, cfg)
+        res = p.resolution
         try:
-            res = float(cfg.param("resolution", 0.05))
-        except (TypeError, ValueError):
-            res = -1.0
-        if not res > 0:
-            raise ConfigError(f"{cfg.where}: resolution {cfg.param('resolution')!r} must be positive metres per pixel")
-        thresh = float(cfg.param("occupied_thresh", 0.5))
-        try:
-            grid = GridMap.from_image(path, res, (0.0, 0.0), threshold=thresh)
+            grid = GridMap.from_image(p.filename, res, (0.0, 0.0), threshold=p.occupied_thresh)
         except SimulatorError as e:
             raise ConfigError(f"{cfg.where}: {e}") from None
-        origin = cfg.param("origin")
+        origin = p.origin
         if origin is None:
             origin = (-grid.width * res / 2, -grid.height * res / 2)
-        if not (isinstance(origin, list | tuple) and len(origin) >= 2):
-            raise ConfigError(f"{cfg.where}: origin {origin!r} must be [x, y] in metres")
         occ = grid.occupied
-        if cfg.param("negate", False):
+        if p.negate:
             occ = ~occ
         self.map = MapData(
             grid.width, grid.height, res, (float(origin[0]), float(origin[1])), np.where(occ, 1, -1).astype(np.int8)
@@ -77,12 +86,18 @@ class MapfileDriver(Driver):
         return self.info()
 
 
+@dataclass(frozen=True)
+class SimMapParams:
+    """``simmap`` has no parameters (the map is the simulation's floorplan)."""
+
+
 @register("simmap")
 class SimMapDriver(MapfileDriver):
     """The floorplan of the in-process simulation served as a map (``rsal sim`` adds it)."""
 
     def __init__(self, cfg, server):
         Driver.__init__(self, cfg, server)
+        parse_params(SimMapParams, cfg)  # no parameters: a stray key is a mistake, named
         world = server.shared.get("simulator.world")
         if world is None or world.grid is None:
             raise ConfigError(f"{cfg.where}: there is no simulated floorplan to serve")

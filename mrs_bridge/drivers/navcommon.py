@@ -5,7 +5,7 @@
 - Beam geometry of a range device: :class:`~rsal.interfaces.ranger.RangerGeometry`, re-exported
   here as ``BeamGeometry`` (the name the drivers used before it moved to the ranger interface).
 - Player configuration units: lengths in metres, angles in **degrees** in the config file; drivers
-  convert with :func:`deg_param`.
+  declare them in their parameter dataclass (:mod:`mrs_bridge.params`) and convert to radians.
 """
 
 from __future__ import annotations
@@ -15,9 +15,7 @@ import math
 from rsal.geometry import compose, relative, wrap
 from rsal.interfaces.ranger import RangerGeometry
 
-from ..config import ConfigError
-
-__all__ = ["BeamGeometry", "Handover", "deg_param", "num_param"]
+__all__ = ["BeamGeometry", "Handover"]
 
 BeamGeometry = RangerGeometry  # the name before it moved to rsal/interfaces/ranger.py
 
@@ -47,15 +45,3 @@ class Handover:
             self.sent = (t, now)
             return t
         return None
-
-
-def num_param(cfg, key: str, default: float, *, lo: float = -math.inf, hi: float = math.inf) -> float:
-    v = cfg.param(key, default)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
-        raise ConfigError(f"{cfg.where}: {key} = {v!r} must be a number in [{lo:g}, {hi:g}]")
-    return float(v)
-
-
-def deg_param(cfg, key: str, default_deg: float, *, lo: float = 0.0, hi: float = 360.0) -> float:
-    """An angle given in degrees in the config (Player's unit), returned in radians."""
-    return math.radians(num_param(cfg, key, default_deg, lo=lo, hi=hi))

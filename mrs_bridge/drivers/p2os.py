@@ -1,84 +1,40 @@
 """``p2os`` driver: Pioneer 2/3 robots over a serial line (Player's p2os driver, thesis 3.3.2, A.2).
 
-The robot's microcontroller (P2OS, later ARCOS) speaks a packet protocol on its serial port:
-
-    0xFA 0xFB  count  payload[count - 2]  checksum_hi checksum_lo
-
-``count`` is the payload length plus the two checksum bytes (at most 200); the checksum is the sum
-of the payload's 16-bit big-endian words, an odd last byte xor'd in, truncated to 16 bits and sent
-high byte first (:func:`checksum`).
-
-Client commands (:func:`command`) are a payload of the command number, optionally an argument:
-type byte 0x3B (positive integer), 0x1B (negative integer) with the absolute value as 2 bytes
-little-endian, or 0x2B (string) with a length byte and the text. Those used here: SYNC0/1/2 (0, 1,
-2), OPEN (1), CLOSE (2), PULSE (0), ENABLE (4, 1 = motors on), VEL (11,
-mm/s), RVEL (21, deg/s), SONAR (28, 1 = on), DIGOUT (30, mask << 8 | bits), GRIPPER (33).
+The robot's microcontroller (P2OS, later ARCOS) speaks a packet protocol on its serial port; its
+codec (framing, checksum, commands, SIP parsing, robot models, odometry) is :mod:`mrs_bridge.hw.p2os`
+(the names are re-exported here), the port's thread :class:`mrs_bridge.hw.serial_link.SerialLink`.
+This module is the glue: the session on the link, and the devices on the server.
 
 Connecting: SYNC0, SYNC1, SYNC2 are each echoed by the robot; the SYNC2 echo carries the robot's
 name, class and subclass as NUL-terminated strings. Then OPEN, SONAR 1, ENABLE 1, and PULSE at
 least every ``pulse`` seconds (the robot stops its motors when it hears nothing for about 2 s).
 
-Standard server information packet (SIP), decoded by :func:`decode_sip`; offsets into the payload,
-multi-byte values little-endian:
-
-====== ===== =====================================================================================
-offset bytes field
-====== ===== =====================================================================================
-0      1     type: 0x32 stopped, 0x33 moving
-1      2     xpos: 15-bit counter of DistConv mm units, wraps around
-3      2     ypos: likewise
-5      2     thpos: heading, 4096 units per revolution (12 bits used, wraps around)
-7      2     l_vel: left wheel, signed, VelConv mm/s
-9      2     r_vel: right wheel, likewise
-11     1     battery: 0.1 V
-12     2     stall and bumpers: bit 0 left wheel stalled, bits 1-7 rear bumpers; bit 8 right wheel
-             stalled, bits 9-15 front bumpers
-14     2     control: servo heading set-point (not used)
-16     2     flags: bit 0 motors enabled, bits 1-4 sonar arrays on
-18     1     compass: 2 degree units (not used)
-19     1     sonar readings n, followed by n times: sonar number (1 byte), range (2 bytes, RangeConv mm)
-20+3n  1     gripper state: bit 0 paddles open, 1 paddles closed, 2 lift up, 3 lift down, 4 inner
-             break beam, 5 outer break beam, 6 paddles moving, 7 lift moving
-+1     1     analog port selected
-+2     1     analog value (0..255 = 0..5 V)
-+3     1     digital inputs
-+4     1     digital outputs
-+5     2     battery x10: 0.1 V (more precise firmwares; 0 = use the 1-byte value)
-+7     1     charge state: 0 not charging, 1 bulk, 2 overcharge, 3 float
-====== ===== =====================================================================================
-
-Everything after the sonar readings is optional (older firmwares end there). Odometry integrates
-the differences of the wrapping counters, so the pose is continuous across wrap-arounds and
-reconnections; the conversion factors come from a per-model table (:data:`MODELS`) chosen by the
-subclass the robot announces (or the ``model`` parameter).
-
-Threads: a reader thread owns the serial port: it connects (sync handshake with retries), writes
-the commands the scheduler queued, sends the keep-alive pulse, reads and parses packets and hands
-them over through a deque drained in ``update()``. The scheduler thread never touches the port.
-When no SIP arrives for ``timeout`` seconds the robot counts as lost: its devices' tokens are
-withdrawn and the thread reconnects with a growing back-off; tokens return with the first SIP.
-Bytes that are no packet (noise, bad checksums, truncated packets) are skipped by re-synchronising
-on 0xFA 0xFB, counted (``stats``) and reported at most every 5 s.
+Threads: the serial link's thread owns the port: it connects (the sync handshake of
+:meth:`P2osDriver._session`, with retries), writes the commands the scheduler queued, sends the
+keep-alive pulse, reads and parses packets and hands them over through its inbox, drained in
+``update()``. The scheduler thread never touches the port. When no SIP arrives for ``timeout``
+seconds the robot counts as lost: its devices' tokens are withdrawn and the link reconnects with a
+growing back-off; tokens return with the first SIP. Bytes that are no packet (noise, bad checksums,
+truncated packets) are skipped by re-synchronising on 0xFA 0xFB, counted (``stats``) and reported at
+most every 5 s.
 
 Provides ``position2d`` (odometry, VelocityCmd), ``sonar`` or ``ranger`` (the sonar ring),
 ``power``, ``gripper`` (GripperCmd), ``dio`` (digital in/out, DioCmd) and ``actarray`` (the gripper
 lift as a one-joint array, Player's ``lift::actarray:0``).
+
+The module is over 500 lines because one Pioneer serves seven interfaces: their publication,
+commands and rpcs are the bulk, each short; the protocol itself is in :mod:`mrs_bridge.hw.p2os`.
 """
 
 from __future__ import annotations
 
-import collections
-import difflib
 import math
-import struct
-import threading
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
-from rsal.geometry import wrap
 from rsal.msgs import (
     ActArrayData,
     DioCmd,
@@ -101,6 +57,40 @@ from rsal.msgs import (
 from ..baseguard import ESTOP_OPS, BaseGuard
 from ..config import ConfigError
 from ..driver import Driver, OutOfRange, register
+from ..hw.p2os import (
+    CLOSE,
+    DIGOUT,
+    ENABLE,
+    GRIP_CLOSE,
+    GRIP_OPEN,
+    GRIP_STOP,
+    GRIPPER,
+    GRIPPER_ARGS,
+    LIFT_DOWN,
+    LIFT_STOP,
+    LIFT_UP,
+    MODELS,
+    OPEN,
+    PULSE,
+    RVEL,
+    SONAR,
+    SYNC0,
+    SYNC1,
+    SYNC2,
+    VEL,
+    Odometry,
+    PacketReader,
+    RobotModel,
+    Sip,
+    checksum,
+    command,
+    decode_sip,
+    is_sip,
+    model_for,
+    packet,
+)
+from ..hw.serial_link import SerialLink
+from ..params import param, parse_params
 
 __all__ = [
     "P2osDriver",
@@ -113,403 +103,31 @@ __all__ = [
     "command",
     "decode_sip",
     "Odometry",
+    # command numbers and arguments, re-exported from mrs_bridge.hw.p2os with the codec
+    "GRIP_CLOSE",
+    "GRIP_OPEN",
+    "GRIP_STOP",
+    "LIFT_DOWN",
+    "LIFT_STOP",
+    "LIFT_UP",
 ]
-
-# ---------------------------------------------------------------------------- protocol
-HEADER = b"\xfa\xfb"
-MAX_COUNT = 200  # largest byte count a P2OS packet may announce
-
-SYNC0, SYNC1, SYNC2 = 0, 1, 2
-PULSE, OPEN, CLOSE = 0, 1, 2
-ENABLE, VEL, RVEL, SONAR, DIGOUT, GRIPPER = 4, 11, 21, 28, 30, 33
-ARG_INT, ARG_NINT, ARG_STR = 0x3B, 0x1B, 0x2B
-
-# GRIPPER command arguments (Pioneer gripper manual)
-GRIP_OPEN, GRIP_CLOSE, GRIP_STOP, LIFT_UP, LIFT_DOWN, LIFT_STOP = 1, 2, 3, 4, 5, 6
-GRIPPER_ARGS = {"open": GRIP_OPEN, "close": GRIP_CLOSE, "stop": GRIP_STOP, "up": LIFT_UP, "down": LIFT_DOWN}
-
-SIP_STOPPED, SIP_MOVING = 0x32, 0x33
-
-
-def checksum(payload: bytes) -> int:
-    """P2OS checksum: 16-bit big-endian word sum (odd last byte xor'd in), truncated to 16 bits."""
-    n = len(payload)
-    even = np.frombuffer(payload, dtype=">u2", count=n // 2) if n >= 2 else np.zeros(0, ">u2")
-    c = int(even.sum(dtype=np.uint64)) & 0xFFFF
-    if n & 1:
-        c ^= payload[-1]
-    return c
-
-
-def packet(payload: bytes) -> bytes:
-    """A framed packet: header, count, payload, checksum (high byte first)."""
-    if not 0 < len(payload) <= MAX_COUNT - 2:
-        raise ValueError(f"payload of {len(payload)} bytes; a P2OS packet holds 1..{MAX_COUNT - 2}")
-    return HEADER + bytes([len(payload) + 2]) + payload + checksum(payload).to_bytes(2, "big")
-
-
-def command(cmd: int, arg: int | str | None = None) -> bytes:
-    """A framed client command with an optional integer (|arg| < 65536) or string argument."""
-    if arg is None:
-        return packet(bytes([cmd]))
-    if isinstance(arg, str):
-        raw = arg.encode("ascii")
-        return packet(bytes([cmd, ARG_STR, len(raw)]) + raw)
-    if not -0xFFFF <= arg <= 0xFFFF:
-        raise ValueError(f"argument {arg} of command {cmd} does not fit in 2 bytes")
-    return packet(bytes([cmd, ARG_INT if arg >= 0 else ARG_NINT]) + abs(arg).to_bytes(2, "little"))
-
-
-class PacketReader:
-    """Incremental packet parser: :meth:`feed` bytes, get whole payloads back. Bytes that do not
-    form a packet are skipped by searching for the next 0xFA 0xFB; ``skipped`` counts those bytes,
-    ``bad`` the frames dropped for a bad checksum or an impossible byte count."""
-
-    def __init__(self) -> None:
-        self.buf = bytearray()
-        self.skipped = 0
-        self.bad = 0
-        self.packets = 0
-
-    def feed(self, data: bytes) -> list[bytes]:
-        self.buf += data
-        out: list[bytes] = []
-        buf = self.buf
-        while True:
-            i = buf.find(HEADER)
-            if i < 0:
-                keep = 1 if buf[-1:] == b"\xfa" else 0  # a header may be split across reads
-                self.skipped += len(buf) - keep
-                del buf[: len(buf) - keep]
-                break
-            if i:
-                self.skipped += i
-                del buf[:i]
-            if len(buf) < 3:
-                break
-            count = buf[2]
-            if count < 3 or count > MAX_COUNT:
-                self.bad += 1
-                self.skipped += 2
-                del buf[:2]
-                continue
-            if len(buf) < 3 + count:
-                break
-            payload = bytes(buf[3 : 1 + count])
-            if checksum(payload) != int.from_bytes(buf[1 + count : 3 + count], "big"):
-                # perhaps a truncated frame ran into the next one: resync just after this header
-                self.bad += 1
-                self.skipped += 2
-                del buf[:2]
-                continue
-            del buf[: 3 + count]
-            self.packets += 1
-            out.append(payload)
-        return out
-
-
-@dataclass(frozen=True)
-class Sip:
-    """A decoded standard SIP in the robot's raw units (see the module docstring)."""
-
-    moving: bool
-    xpos: int
-    ypos: int
-    thpos: int
-    l_vel: int
-    r_vel: int
-    battery: int  # 0.1 V
-    stall_bumpers: int
-    flags: int
-    sonars: tuple[tuple[int, int], ...]  # (number, raw range)
-    gripper: int | None = None
-    analog_port: int | None = None
-    analog: int | None = None
-    digin: int | None = None
-    digout: int | None = None
-    battery_x10: int | None = None
-    charge_state: int | None = None
-
-    @property
-    def stalled(self) -> bool:
-        return bool(self.stall_bumpers & 0x0101)
-
-    @property
-    def motors_enabled(self) -> bool:
-        return bool(self.flags & 1)
-
-    @property
-    def volts(self) -> float:
-        return (self.battery_x10 if self.battery_x10 else self.battery) / 10.0
-
-
-_SIP_HEAD = struct.Struct("<BHHhhhBHhHBB")  # type .. sonar count: 20 bytes
-_SIP_TAIL = struct.Struct("<BBBBBHB")  # gripper .. charge state: 8 bytes
-
-
-def is_sip(payload: bytes) -> bool:
-    return len(payload) > 0 and payload[0] in (SIP_STOPPED, SIP_MOVING)
-
-
-def decode_sip(payload: bytes) -> Sip:
-    """Decode a standard SIP payload; raises ``ValueError`` if it is not one or is too short."""
-    if not is_sip(payload):
-        raise ValueError(f"not a standard SIP (type 0x{payload[0]:02x})" if payload else "empty payload")
-    if len(payload) < _SIP_HEAD.size:
-        raise ValueError(f"SIP of {len(payload)} bytes is shorter than the {_SIP_HEAD.size} fixed bytes")
-    typ, x, y, th, lv, rv, batt, sb, _control, flags, _compass, n = _SIP_HEAD.unpack_from(payload)
-    end = _SIP_HEAD.size + 3 * n
-    if len(payload) < end:
-        raise ValueError(f"SIP announces {n} sonar readings but ends after {(len(payload) - _SIP_HEAD.size) // 3}")
-    sonars = tuple(struct.iter_unpack("<BH", payload[_SIP_HEAD.size : end]))
-    tail: tuple = (None,) * 7
-    if len(payload) >= end + _SIP_TAIL.size:
-        tail = _SIP_TAIL.unpack_from(payload, end)
-    return Sip(typ == SIP_MOVING, x & 0x7FFF, y & 0x7FFF, th & 0xFFF, lv, rv, batt, sb, flags, sonars, *tail)
-
-
-# ---------------------------------------------------------------------------- robot models
-def _ring(front: list[tuple[float, float, float]]) -> tuple[tuple[float, float, float], ...]:
-    """Sonar poses (m, m, rad) from (mm, mm, deg) rows."""
-    return tuple((x / 1000.0, y / 1000.0, math.radians(a)) for x, y, a in front)
-
-
-_P2DX_SONARS = [
-    (115, 130, 90), (155, 115, 50), (190, 80, 30), (210, 25, 10),
-    (210, -25, -10), (190, -80, -30), (155, -115, -50), (115, -130, -90),
-    (-115, -130, -90), (-155, -115, -130), (-190, -80, -150), (-210, -25, -170),
-    (-210, 25, 170), (-190, 80, 150), (-155, 115, 130), (-115, 130, 90),
-]  # fmt: skip
-_P3AT_SONARS = [
-    (147, 136, 90), (193, 119, 50), (227, 79, 30), (245, 27, 10),
-    (245, -27, -10), (227, -79, -30), (193, -119, -50), (147, -136, -90),
-    (-144, -136, -90), (-189, -119, -130), (-223, -79, -150), (-241, -27, -170),
-    (-241, 27, 170), (-223, 79, 150), (-189, 119, 130), (-144, 136, 90),
-]  # fmt: skip
-
-
-@dataclass(frozen=True)
-class RobotModel:
-    """Per-model robot parameters (the values of the robot's parameter file)."""
-
-    name: str
-    dist_conv: float  # mm per position count
-    angle_conv: float  # rad per heading unit
-    vel_conv: float  # mm/s per wheel velocity unit
-    range_conv: float  # mm per sonar unit
-    diff_conv: float  # rad/s per mm/s of (r_vel - l_vel), times 2
-    sonar_poses: tuple[tuple[float, float, float], ...]  # m, m, rad; robot frame
-    sonars: int  # transducers fitted by default
-    max_speed: tuple[float, float]  # m/s, rad/s
-    size: tuple[float, float]  # m
-    sonar_range: tuple[float, float] = (0.1, 5.0)  # m
-
-
-MODELS: dict[str, RobotModel] = {
-    "p2dx": RobotModel(
-        "p2dx", 0.840, 2 * math.pi / 4096, 1.0, 1.0, 0.0056, _ring(_P2DX_SONARS), 8,
-        (0.75, math.radians(100)), (0.44, 0.38),
-    ),
-    "p3at": RobotModel(
-        "p3at", 1.0, 2 * math.pi / 4096, 1.0, 1.0, 0.0034, _ring(_P3AT_SONARS), 16,
-        (0.7, math.radians(140)), (0.626, 0.505),
-    ),
-}  # fmt: skip
-
-
-def model_for(subclass: str) -> RobotModel | None:
-    """The model for the subclass string a robot announces ("P2DX", "p3at", "P2DXe" ...)."""
-    s = subclass.strip().lower()
-    if s in MODELS:
-        return MODELS[s]
-    for k, m in MODELS.items():
-        if s.startswith(k):
-            return m
-    return None
-
-
-class Odometry:
-    """Continuous pose from the wrapping 15-bit position and 12-bit heading counters."""
-
-    def __init__(self, model: RobotModel) -> None:
-        self.model = model
-        self.pose = [0.0, 0.0, 0.0]  # m, m, rad
-        self._last: tuple[int, int, int] | None = None
-        self._frame = 0.0  # rotation of the reported frame against the robot's counters
-
-    def reset_reference(self) -> None:
-        """Forget the counters (after a reconnect the robot starts them again); the pose stays."""
-        self._last = None
-
-    def set_pose(self, x: float, y: float, yaw: float) -> None:
-        self._frame += wrap(yaw - self.pose[2])
-        self.pose = [x, y, wrap(yaw)]
-
-    def update(self, sip: Sip) -> tuple[float, float, float]:
-        cur = (sip.xpos, sip.ypos, sip.thpos)
-        if self._last is not None:
-            m = self.model
-            dx = _wrap_count(cur[0] - self._last[0], 15) * m.dist_conv / 1000.0
-            dy = _wrap_count(cur[1] - self._last[1], 15) * m.dist_conv / 1000.0
-            dth = _wrap_count(cur[2] - self._last[2], 12) * m.angle_conv
-            c, s = math.cos(self._frame), math.sin(self._frame)
-            self.pose[0] += c * dx - s * dy
-            self.pose[1] += s * dx + c * dy
-            self.pose[2] = wrap(self.pose[2] + dth)
-        self._last = cur
-        return (self.pose[0], self.pose[1], self.pose[2])
-
-
-def _wrap_count(d: int, bits: int) -> int:
-    half = 1 << (bits - 1)
-    return (d + half) % (1 << bits) - half
-
-
-# ---------------------------------------------------------------------------- the serial link
-class _Link(threading.Thread):
-    """Owns the serial port: connect, write queued commands, pulse, read; events go to ``inbox``."""
-
-    def __init__(self, port: str, baud: int, pulse: float, reconnect: float, timeout: float) -> None:
-        super().__init__(name=f"p2os {port}", daemon=True)
-        self.port, self.baud, self.pulse, self.reconnect, self.timeout = port, baud, pulse, reconnect, timeout
-        # to the scheduler: ("connected", name, class, subclass) | ("sip", t, payload) | ("lost", why)
-        self.inbox: collections.deque = collections.deque()
-        self.outbox: collections.deque = collections.deque()  # framed commands to write
-        self.reader = PacketReader()
-        self.stop_event = threading.Event()
-        self.connected = False
-        self.sync_retries = 3
-        self.sync_wait = 0.5  # s to wait for each echo
-        self._ser = None
-
-    # the scheduler side -------------------------------------------------------
-    def send(self, data: bytes) -> None:
-        if self.connected:
-            self.outbox.append(data)
-
-    def stop(self, final: list[bytes], timeout: float = 1.0) -> None:
-        """Write ``final`` (if connected), then close the port and end the thread."""
-        if self.connected:
-            self.outbox.extend(final)
-        self.stop_event.set()
-        if self.is_alive():
-            self.join(timeout)
-
-    # the thread ---------------------------------------------------------------
-    def run(self) -> None:
-        backoff = self.reconnect
-        while not self.stop_event.is_set():
-            why = self._session()
-            if self.stop_event.is_set():
-                break
-            if self.connected:
-                self.connected = False
-                backoff = self.reconnect
-            self.inbox.append(("lost", why))
-            self.stop_event.wait(backoff)
-            backoff = min(backoff * 2, 8 * self.reconnect)
-        self._flush_and_close()
-
-    def _open(self):
-        import serial
-
-        return serial.Serial(self.port, self.baud, timeout=0.02, write_timeout=0.5)
-
-    def _flush_and_close(self) -> None:
-        ser = self._ser
-        if ser is None:
-            return
-        try:
-            while self.outbox:
-                ser.write(self.outbox.popleft())
-            ser.flush()
-        except Exception:
-            pass
-        try:
-            ser.close()
-        except Exception:
-            pass
-        self._ser = None
-
-    def _session(self) -> str:
-        """Connect and serve until the robot is lost; return why."""
-        try:
-            self._ser = self._open()
-        except Exception as e:  # SerialException, OSError: port missing, busy, no permission
-            return f"cannot open {self.port}: {e}"
-        try:
-            self.outbox.clear()
-            self.reader.buf.clear()  # counters survive reconnections
-            ident = self._sync()
-            if ident is None:
-                return f"no answer to the sync handshake on {self.port} at {self.baud} baud"
-            self.connected = True
-            self.inbox.append(("connected", *ident))
-            for c in (command(OPEN), command(SONAR, 1), command(ENABLE, 1), command(PULSE)):
-                self._ser.write(c)
-            last_sip = time.monotonic()
-            last_pulse = last_sip
-            while not self.stop_event.is_set():
-                while self.outbox:
-                    self._ser.write(self.outbox.popleft())
-                now = time.monotonic()
-                if now - last_pulse >= self.pulse:
-                    self._ser.write(command(PULSE))
-                    last_pulse = now
-                data = self._ser.read(max(1, self._ser.in_waiting))
-                now = time.monotonic()
-                for p in self.reader.feed(data) if data else ():
-                    if is_sip(p):
-                        last_sip = now
-                        self.inbox.append(("sip", now, p))
-                if now - last_sip > self.timeout:
-                    return f"no data from the robot for {self.timeout:g} s"
-            return "stopped"
-        except Exception as e:  # the port went away under us
-            return f"{self.port}: {type(e).__name__}: {e}"
-        finally:
-            if not self.stop_event.is_set():
-                self._close_quietly()
-
-    def _close_quietly(self) -> None:
-        try:
-            self._ser.close()
-        except Exception:
-            pass
-        self._ser = None
-
-    def _expect(self, want: int) -> bytes | None:
-        """Read packets for up to ``sync_wait`` s; the payload starting with ``want`` or None."""
-        deadline = time.monotonic() + self.sync_wait
-        sips = False
-        while time.monotonic() < deadline and not self.stop_event.is_set():
-            data = self._ser.read(max(1, self._ser.in_waiting))
-            for p in self.reader.feed(data) if data else ():
-                if p[0] == want and (want != SYNC0 or len(p) == 1):
-                    return p
-                sips = sips or is_sip(p)
-        if sips:  # still open from an earlier client: close it before syncing again
-            self._ser.write(command(CLOSE))
-        return None
-
-    def _sync(self) -> tuple[str, str, str] | None:
-        for step in (SYNC0, SYNC1, SYNC2):
-            for _ in range(self.sync_retries):
-                self._ser.write(command(step))
-                p = self._expect(step)
-                if p is not None:
-                    break
-            else:
-                return None
-        strings = p[1:].split(b"\0")
-        name, cls, sub = (
-            (s.decode("ascii", "replace").strip() for s in strings[:3]) if len(strings) >= 3 else ("", "", "")
-        )
-        return name, cls, sub
 
 
 # ---------------------------------------------------------------------------- the driver
-PARAMS = ("port", "baud", "model", "pulse", "reconnect", "timeout", "sonars", "cmd_timeout")
+@dataclass(frozen=True)
+class P2osParams:
+    """The ``p2os`` driver's parameters (module docstring)."""
+
+    port: str = param(doc="the robot's serial device", example="/dev/ttyS0")
+    baud: Literal[9600, 19200, 38400, 57600, 115200] = param(9600)
+    model: str | None = param(None, choices=tuple(MODELS))
+    pulse: float = param(0.5, min=0.05, max=1.5, unit="seconds")
+    reconnect: float = param(1.0, min=0.05, max=60.0, unit="seconds")
+    timeout: float = param(1.0, min=0.2, max=30.0, unit="seconds")
+    sonars: Literal[8, 16] | None = param(None, expect="8 or 16 (transducers fitted)")
+    cmd_timeout: Any = param(None, doc="s, read by the base guard (mrs_bridge.baseguard)")
+
+
 WARN_INTERVAL = 5.0
 POWER_EMPTY, POWER_FULL = 10.5, 13.0  # V: 0 % and 100 % of a 12 V lead-acid pack
 
@@ -531,38 +149,17 @@ class P2osDriver(Driver):
 
     def __init__(self, cfg, server):
         super().__init__(cfg, server)
-        for k in cfg.params:
-            if k not in PARAMS:
-                close = difflib.get_close_matches(k, PARAMS, n=1)
-                hint = f"did you mean {close[0]!r}?" if close else f"known: {', '.join(PARAMS)}"
-                raise ConfigError(f"{cfg.where}: unknown parameter {k!r}; {hint}")
+        p = self.settings = parse_params(P2osParams, cfg)
         try:
             import serial  # noqa: F401
         except ImportError:
             raise ConfigError(
                 f"{cfg.where}: the p2os driver needs pyserial; install it with: pip install pyserial"
             ) from None
-        port = cfg.param("port")
-        if not isinstance(port, str) or not port:
-            raise ConfigError(f"{cfg.where}: needs 'port', the robot's serial device (e.g. port = \"/dev/ttyS0\")")
-        self.port = port
-        baud = cfg.param("baud", 9600)
-        if isinstance(baud, bool) or not isinstance(baud, int) or baud not in (9600, 19200, 38400, 57600, 115200):
-            raise ConfigError(f"{cfg.where}: baud = {baud!r} must be one of 9600, 19200, 38400, 57600, 115200")
-        self.baud = baud
-        self.pulse = self._num("pulse", 0.5, 0.05, 1.5)
-        self.reconnect = self._num("reconnect", 1.0, 0.05, 60.0)
-        self.timeout = self._num("timeout", 1.0, 0.2, 30.0)
-        m = cfg.param("model")
-        if m is not None and m not in MODELS:
-            close = difflib.get_close_matches(str(m), list(MODELS), n=1)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
-            raise ConfigError(f"{cfg.where}: model = {m!r} must be one of {', '.join(MODELS)}{hint}")
-        self.forced_model = MODELS[m] if m is not None else None
-        s = cfg.param("sonars")
-        if s is not None and (isinstance(s, bool) or s not in (8, 16)):
-            raise ConfigError(f"{cfg.where}: sonars = {s!r} must be 8 or 16 (transducers fitted)")
-        self.sonar_override = s
+        self.port, self.baud = p.port, p.baud
+        self.pulse, self.reconnect, self.timeout = p.pulse, p.reconnect, p.timeout
+        self.forced_model = MODELS[p.model] if p.model is not None else None
+        self.sonar_override = p.sonars
         for a in cfg.provides:
             if a.index != 0:
                 raise ConfigError(
@@ -572,7 +169,10 @@ class P2osDriver(Driver):
         self.model: RobotModel | None = self.forced_model
         self.odom: Odometry | None = None
         self.ident: tuple[str, str, str] | None = None
-        self.link: _Link | None = None
+        self.link: SerialLink | None = None
+        self.reader = PacketReader()  # the link thread's; its counters survive reconnections
+        self.sync_retries = 3
+        self.sync_wait = 0.5  # s to wait for each echo
         self.last_sip: Sip | None = None
         self.sonar_ranges: np.ndarray | None = None
         self._sonar_fresh = False  # readings arrived since the last sonar publication
@@ -585,16 +185,19 @@ class P2osDriver(Driver):
         self._t0 = time.monotonic()
         self.guard = BaseGuard.for_driver(self, cfg.provides[0].node)
 
-    def _num(self, key: str, default: float, lo: float, hi: float) -> float:
-        v = self.cfg.param(key, default)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
-            raise ConfigError(f"{self.cfg.where}: {key} = {v!r} must be a number of seconds in [{lo:g}, {hi:g}]")
-        return float(v)
-
     # ------------------------------------------------------------------ lifecycle
     def setup(self) -> None:
         self.online = False
-        self.link = _Link(self.port, self.baud, self.pulse, self.reconnect, self.timeout)
+        self.link = SerialLink(
+            self.port,
+            self.baud,
+            self._session,
+            name=f"p2os {self.port}",
+            reconnect=self.reconnect,
+            max_backoff=8 * self.reconnect,
+            read_timeout=0.02,
+            write_timeout=0.5,
+        )
         self.link.start()
         self.log.info("%s: connecting to the robot on %s at %d baud", self.cfg.where, self.port, self.baud)
 
@@ -683,9 +286,9 @@ class P2osDriver(Driver):
         return sip
 
     def _report_noise(self, now: float) -> None:
-        r = self.link.reader if self.link else None
-        if r is None:
+        if self.link is None:
             return
+        r = self.reader
         self.stats["skipped_bytes"] = r.skipped
         self.stats["bad_packets"] = r.bad
         cur = (self.stats["skipped_bytes"], self.stats["bad_packets"])
@@ -699,6 +302,64 @@ class P2osDriver(Driver):
             )
             self._reported = cur
             self._last_warn = now
+
+    # ------------------------------------------------------------------ the session (on the link's thread)
+    def _session(self, link: SerialLink) -> str:
+        """Connect and serve until the robot is lost; return why. Runs on the link's thread and
+        touches only the link and the packet reader."""
+        self.reader.buf.clear()  # counters survive reconnections
+        ident = self._sync(link)
+        if ident is None:
+            return f"no answer to the sync handshake on {self.port} at {self.baud} baud"
+        link.up("connected", *ident)
+        for c in (command(OPEN), command(SONAR, 1), command(ENABLE, 1), command(PULSE)):
+            link.write(c)
+        last_sip = time.monotonic()
+        last_pulse = last_sip
+        while not link.stopping:
+            link.write_pending()
+            now = time.monotonic()
+            if now - last_pulse >= self.pulse:
+                link.write(command(PULSE))
+                last_pulse = now
+            data = link.read()
+            now = time.monotonic()
+            for p in self.reader.feed(data) if data else ():
+                if is_sip(p):
+                    last_sip = now
+                    link.post("sip", now, p)
+            if now - last_sip > self.timeout:
+                return f"no data from the robot for {self.timeout:g} s"
+        return "stopped"
+
+    def _expect(self, link: SerialLink, want: int) -> bytes | None:
+        """Read packets for up to ``sync_wait`` s; the payload starting with ``want`` or None."""
+        deadline = time.monotonic() + self.sync_wait
+        sips = False
+        while link.wait_until(deadline):
+            data = link.read()
+            for p in self.reader.feed(data) if data else ():
+                if p[0] == want and (want != SYNC0 or len(p) == 1):
+                    return p
+                sips = sips or is_sip(p)
+        if sips:  # still open from an earlier client: close it before syncing again
+            link.write(command(CLOSE))
+        return None
+
+    def _sync(self, link: SerialLink) -> tuple[str, str, str] | None:
+        for step in (SYNC0, SYNC1, SYNC2):
+            for _ in range(self.sync_retries):
+                link.write(command(step))
+                p = self._expect(link, step)
+                if p is not None:
+                    break
+            else:
+                return None
+        strings = p[1:].split(b"\0")
+        name, cls, sub = (
+            (s.decode("ascii", "replace").strip() for s in strings[:3]) if len(strings) >= 3 else ("", "", "")
+        )
+        return name, cls, sub
 
     # ------------------------------------------------------------------ publishing
     def _t(self) -> float:
@@ -763,7 +424,7 @@ class P2osDriver(Driver):
         return 10.0  # the robot's SIP rate
 
     # ------------------------------------------------------------------ commands
-    def _need_robot(self) -> _Link:
+    def _need_robot(self) -> SerialLink:
         if self.link is None or not self.link.connected or self.model is None:
             raise RpcError(ErrorCode.UNAVAILABLE, f"the robot on {self.port} is not answering")
         return self.link

@@ -8,12 +8,20 @@ step, minimum and maximum range).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from rsal.msgs import MessageError, RangerData
 
 from ..config import ConfigError
 from ..driver import Driver, register
+from ..params import parse_params
 
 __all__ = ["RangerToLaser"]
+
+
+@dataclass(frozen=True)
+class RangerToLaserParams:
+    """``rangertolaser`` has no parameters."""
 
 
 @register("rangertolaser")
@@ -27,6 +35,7 @@ class RangerToLaser(Driver):
         rangers = [r for r in cfg.requires if r.interface == "ranger"]
         if len(rangers) != 1 or len(cfg.provides) != 1:
             raise ConfigError(f"{cfg.where}: needs exactly one required ranger and one provided laser")
+        parse_params(RangerToLaserParams, cfg)  # no parameters: a stray key is a mistake, named
         self.source = rangers[0].without_key()
         self.last: RangerData | None = None
         self.count = 0

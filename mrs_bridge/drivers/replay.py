@@ -31,25 +31,51 @@ the ``sim`` driver's laser (``kind``, ``pose``, ``sensors[0]`` with ``fov`` in r
 
 from __future__ import annotations
 
-import difflib
 import math
 import time
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Literal
 
 import numpy as np
 
 from rsal.msgs import ErrorCode, RangerData, RpcError
 
-from ..config import ConfigError
 from ..driver import Driver, register
+from ..params import param, parse_params
 
-__all__ = ["ReplayDriver"]
+__all__ = ["ReplayDriver", "ReplayParams"]
 
-PATTERNS = ("constant", "sweep")
 BURST = 0.002  # s of back-to-back scans per scheduler call at rate = inf (commands and rpcs wait at most this)
-STAMPS = ("elapsed", "monotonic")
 _monotonic = time.monotonic
-PARAMS = ("samples", "fov", "range_min", "range_max", "pattern", "value", "period", "count", "stamp")
+
+
+@dataclass(frozen=True)
+class ReplayParams:
+    """The ``replay`` driver's parameters (module docstring)."""
+
+    samples: int = param(682, min=1, doc="beams per scan")
+    fov: float = param(240.0, gt=0.0, max=360.0, expect="in (0, 360] degrees", doc="degrees")
+    range_min: float = param(0.02, doc="m")
+    range_max: float = param(5.6, doc="m")
+    pattern: Literal["constant", "sweep"] = param("constant")
+    value: float = param(1.0, doc="m, the constant range")
+    period: float = param(4.0, doc="s, one turn of the sweep")
+    count: int | None = param(None, min=1, doc="stop after this many scans")
+    stamp: Literal["elapsed", "monotonic"] = param("elapsed")
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.range_min < self.range_max:
+            raise ValueError(
+                f"range_min = {self.range_min:g} and range_max = {self.range_max:g} m must satisfy "
+                "0 <= range_min < range_max"
+            )
+        if self.pattern == "constant" and not self.range_min <= self.value <= self.range_max:
+            raise ValueError(
+                f"value = {self.value:g} m must lie in [range_min, range_max] = "
+                f"[{self.range_min:g}, {self.range_max:g}]"
+            )
+        if self.period <= 0:
+            raise ValueError(f"period = {self.period:g} s must be positive")
 
 
 @register("replay")
@@ -60,35 +86,11 @@ class ReplayDriver(Driver):
 
     def __init__(self, cfg, server):
         super().__init__(cfg, server)
-        for k in cfg.params:
-            if k not in PARAMS:
-                close = difflib.get_close_matches(k, PARAMS, n=1)
-                hint = f"did you mean {close[0]!r}?" if close else f"known: {', '.join(PARAMS)}"
-                raise ConfigError(f"{cfg.where}: unknown parameter {k!r}; {hint}")
-        self.samples = self._int("samples", 682, lo=1)
-        fov_deg = self._num("fov", 240.0)
-        if not 0.0 < fov_deg <= 360.0:
-            raise ConfigError(f"{cfg.where}: fov = {fov_deg:g} must be in (0, 360] degrees")
-        self.fov = math.radians(fov_deg)
-        self.range_min = self._num("range_min", 0.02)
-        self.range_max = self._num("range_max", 5.6)
-        if not 0.0 <= self.range_min < self.range_max:
-            raise ConfigError(
-                f"{cfg.where}: range_min = {self.range_min:g} and range_max = {self.range_max:g} m must satisfy "
-                "0 <= range_min < range_max"
-            )
-        self.pattern = self._choice("pattern", "constant", PATTERNS)
-        self.value = self._num("value", 1.0)
-        if self.pattern == "constant" and not self.range_min <= self.value <= self.range_max:
-            raise ConfigError(
-                f"{cfg.where}: value = {self.value:g} m must lie in [range_min, range_max] = "
-                f"[{self.range_min:g}, {self.range_max:g}]"
-            )
-        self.period = self._num("period", 4.0)
-        if self.period <= 0:
-            raise ConfigError(f"{cfg.where}: period = {self.period:g} s must be positive")
-        self.count = self._int("count", None, lo=1)
-        self.stamp = self._choice("stamp", "elapsed", STAMPS)
+        p = self.settings = parse_params(ReplayParams, cfg)
+        self.samples = p.samples
+        self.fov = math.radians(p.fov)
+        self.range_min, self.range_max = p.range_min, p.range_max
+        self.pattern, self.value, self.period, self.count, self.stamp = p.pattern, p.value, p.period, p.count, p.stamp
         self.angle_step = self.fov / (self.samples - 1) if self.samples > 1 else 0.0
         self.angle_min = -self.fov / 2 if self.samples > 1 else 0.0
         self._constant = np.full(self.samples, self.value, dtype="<f4")
@@ -98,29 +100,6 @@ class ReplayDriver(Driver):
         self.sent = 0
         self.last: RangerData | None = None
         self._t0 = time.monotonic()
-
-    # ------------------------------------------------------------------ parameter readers
-    def _num(self, key: str, default: float) -> float:
-        v = self.cfg.param(key, default)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise ConfigError(f"{self.cfg.where}: {key} = {v!r} must be a finite number")
-        return float(v)
-
-    def _int(self, key: str, default: int | None, *, lo: int) -> int | None:
-        v = self.cfg.param(key, default)
-        if v is None:
-            return None
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-            raise ConfigError(f"{self.cfg.where}: {key} = {v!r} must be an integer >= {lo}")
-        return v
-
-    def _choice(self, key: str, default: str, choices: tuple[str, ...]) -> str:
-        v = self.cfg.param(key, default)
-        if v not in choices:
-            close = difflib.get_close_matches(str(v), choices, n=1)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
-            raise ConfigError(f"{self.cfg.where}: {key} = {v!r} must be one of {', '.join(choices)}{hint}")
-        return v
 
     # ------------------------------------------------------------------ the driver contract
     def setup(self) -> None:

@@ -24,6 +24,8 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from rsal.interfaces.bumper import BumperData, BumperGeometry, BumperSegment
@@ -51,6 +53,7 @@ from rsal.msgs import (
 from ..baseguard import ESTOP_OPS, BaseGuard
 from ..config import ConfigError
 from ..driver import Deferred, Driver, OutOfRange, register
+from ..params import param, parse_params
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +62,27 @@ __all__ = ["SimulationDriver", "SimDriver", "robot_devices"]
 WORLD_KEY = "simulator.world"
 STEP_SLICE = 0.01  # s of stepping per scheduler pass for rpc/step
 ODOM_LIMIT = 1e5  # m (and rad): the largest odometry value set_odom accepts
+
+
+@dataclass(frozen=True)
+class SimulationParams:
+    """The ``simulation`` driver's parameters."""
+
+    worldfile: Path | None = param(None, doc="the world to simulate (relative to the config file)")
+    seed: int | None = param(None, doc="random seed of the world's noise")
+    speedup: float | None = param(
+        None, min=0.0, finite=False, expect="a number (0 or inf: as fast as possible)", doc="default: the world's"
+    )
+
+
+@dataclass(frozen=True)
+class SimParams:
+    """The ``sim`` driver's parameters."""
+
+    model: str | None = param(None, doc="the world's model (default: the provided devices' node)")
+    localization: str | None = param(None, doc='"gps": ground-truth poses; default: the world\'s')
+    battery_percent: float = param(100.0, min=0.0, max=100.0, doc="%")
+    cmd_timeout: Any = param(None, doc="s, read by the base guard (mrs_bridge.baseguard)")
 
 
 @register("simulation")
@@ -72,13 +96,14 @@ class SimulationDriver(Driver):
         from simulator.loader import load_world
         from simulator.world import World
 
+        p = self.settings = parse_params(SimulationParams, cfg)
         world = server.shared.get(WORLD_KEY)
         if world is None:
-            path = cfg.path_param("worldfile")
+            path = p.worldfile
             if path is None:
                 raise ConfigError(f"{cfg.where}: needs 'worldfile', the world to simulate")
             try:
-                spec = load_world(path, seed=cfg.param("seed"))
+                spec = load_world(path, seed=p.seed)
                 world = World(spec)
             except SimulatorError as e:
                 raise ConfigError(f"{cfg.where}: {e}") from None
@@ -87,11 +112,7 @@ class SimulationDriver(Driver):
         from ..kernels import prepare
 
         prepare("simulator", label="sim")  # before any device of this server is announced
-        sp = cfg.param("speedup", world.spec.speedup)
-        try:
-            sp = float(sp)
-        except (TypeError, ValueError):
-            raise ConfigError(f"{cfg.where}: speedup {sp!r} must be a number (0 or inf: as fast as possible)") from None
+        sp = world.spec.speedup if p.speedup is None else p.speedup
         self.speedup = math.inf if sp <= 0 or math.isinf(sp) else sp
         self.rate = self.speedup / world.spec.interval_sim
         self._last_pub = -math.inf
@@ -238,7 +259,8 @@ class SimDriver(Driver):
         if world is None:
             raise ConfigError(f"{cfg.where}: a 'simulation' driver block must come before the sim drivers")
         self.world = world
-        self.model = cfg.param("model") or cfg.provides[0].node
+        p = self.settings = parse_params(SimParams, cfg)
+        self.model = p.model or cfg.provides[0].node
         try:
             self.spec = world.model_spec(self.model)
         except ModelError as e:
@@ -246,7 +268,7 @@ class SimDriver(Driver):
         if not self.spec.position:
             raise ConfigError(f"{cfg.where}: model {self.model!r} is not a robot")
         # The config's localization, else the world's (Stage's position ``localization`` keyword).
-        self.gps = str(cfg.param("localization", self.spec.localization)).lower() == "gps"
+        self.gps = str(p.localization or self.spec.localization).lower() == "gps"
         rangers = world.rangers(self.model)
         self.sonar_idx = next((i for i, r in enumerate(rangers) if r.kind == "sonar"), None)
         self.laser_idx = next((i for i, r in enumerate(rangers) if r.kind != "sonar"), None)
@@ -273,7 +295,7 @@ class SimDriver(Driver):
         self._last_scan: dict[DeviceAddr, float] = {}
         self._last_grip: dict[DeviceAddr, tuple] = {}
         self._last_contact: dict[DeviceAddr, float] = {}  # sim time of the bumper/fiducial data last sent
-        self.battery = float(cfg.param("battery_percent", 100.0))
+        self.battery = p.battery_percent
         self._last_power = -math.inf
         self.motors = True
         self.guard = BaseGuard.for_driver(self, self.cfg.provides[0].node)

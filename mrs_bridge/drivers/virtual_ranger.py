@@ -36,6 +36,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -45,7 +46,7 @@ from rsal.msgs import ErrorCode, MessageError, Position2dData, RangerData, RpcEr
 
 from ..config import ConfigError
 from ..driver import Driver, register
-from .navcommon import num_param
+from ..params import param, parse_params
 
 __all__ = ["VirtualRanger", "merge_discs"]
 
@@ -100,6 +101,22 @@ def merge_discs(
     return out.astype(r.dtype, copy=False)
 
 
+_SIM_EXPECT = 'a simulation device, e.g. "sim:simulation:0"'
+_NAMES = 'a list of model names, e.g. ["r1", "r2"]'
+
+
+@dataclass(frozen=True)
+class VirtualRangerParams:
+    """The ``virtual_ranger`` driver's parameters (module docstring)."""
+
+    simulation: str = param("sim:simulation:0", expect=_SIM_EXPECT, doc="the virtual world, if not required")
+    radius: float = param(0.22, min=0.01, max=10.0, doc="m, the virtual robots' discs")
+    stale: float = param(1.0, min=0.05, max=60.0, doc="s: a pose older than this is dropped")
+    refresh: float = param(5.0, min=0.1, max=3600.0, doc="s between rpc/models")
+    exclude: tuple[str, ...] | None = param(None, expect=_NAMES, doc="default: the provided laser's node")
+    models: tuple[str, ...] | None = param(None, expect=_NAMES, doc="default: asked with rpc/models")
+
+
 @register("virtual_ranger")
 class VirtualRanger(Driver):
     interfaces = ("laser", "ranger")
@@ -119,26 +136,21 @@ class VirtualRanger(Driver):
             )
         self.source = scans[0]
         self.pose_addr = poses[0].without_key()
+        p = self.settings = parse_params(VirtualRangerParams, cfg)
         if sims:
             self.sim = sims[0].without_key()
         else:
-            text = cfg.param("simulation", "sim:simulation:0")
             try:
-                self.sim = parse_device(text) if isinstance(text, str) else None
+                self.sim = parse_device(p.simulation)
             except ValueError:
                 self.sim = None
             if self.sim is None or self.sim.interface != "simulation":
-                raise ConfigError(
-                    f'{cfg.where}: simulation = {text!r} must be a simulation device, e.g. "sim:simulation:0"'
-                )
+                raise ConfigError(f"{cfg.where}: simulation = {p.simulation!r} must be {_SIM_EXPECT}")
         self.out = cfg.provides[0]
-        self.radius = num_param(cfg, "radius", 0.22, lo=0.01, hi=10.0)
-        self.stale = num_param(cfg, "stale", 1.0, lo=0.05, hi=60.0)
-        self.refresh = num_param(cfg, "refresh", 5.0, lo=0.1, hi=3600.0)
-        self.exclude = set(self._names(cfg, "exclude", [self.out.node]))
-        fixed = cfg.param("models")
-        self.fixed = fixed is not None
-        self.names: list[str] = [n for n in self._names(cfg, "models", []) if n not in self.exclude]
+        self.radius, self.stale, self.refresh = p.radius, p.stale, p.refresh
+        self.exclude = set(p.exclude if p.exclude is not None else (self.out.node,))
+        self.fixed = p.models is not None
+        self.names: list[str] = [n for n in (p.models or ()) if n not in self.exclude]
         self.geometry_dict: dict | None = None
         self.beams: RangerGeometry | None = None
         self.pose: tuple[float, float, float] | None = None
@@ -149,15 +161,6 @@ class VirtualRanger(Driver):
         self._sim_up: bool | None = None  # whether the virtual simulation answered ``models`` last time
         self.scans = 0  # scans republished
         self.merged = 0  # of them with at least one virtual robot in view
-
-    @staticmethod
-    def _names(cfg, key: str, default: list[str]) -> list[str]:
-        v = cfg.param(key, default)
-        if isinstance(v, str):
-            v = [v]
-        if not isinstance(v, list) or not all(isinstance(n, str) and n for n in v):
-            raise ConfigError(f'{cfg.where}: {key} = {v!r} must be a list of model names, e.g. ["r1", "r2"]')
-        return list(v)
 
     # ------------------------------------------------------------------ requests
     def setup(self) -> None:

@@ -34,6 +34,8 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass, fields
+from typing import ClassVar
 
 import numpy as np
 
@@ -41,22 +43,33 @@ from rsal.msgs import ErrorCode, MapData, MessageError, PlannerData, Position2dD
 
 from ..config import ConfigError
 from ..driver import Driver, register
-from .navcommon import Handover, deg_param, num_param
+from ..params import param, parse_params
+from .navcommon import Handover
 
 __all__ = ["WavefrontDriver"]
 
-PARAMS = (
-    "safety_dist",
-    "distance_epsilon",
-    "angle_epsilon",
-    "replan_dist_thresh",
-    "replan_min_time",
-    "robot_radius",
-    "max_radius",
-    "dist_penalty",
-)
 RADIUS_TRIES = 20  # describes of the local planner (every 0.25 s) before its radius is taken as it is
-IGNORED = ("cspace_file", "force_map_refresh", "alwayson", "add_rotational_waypoints")
+
+
+@dataclass(frozen=True)
+class WavefrontParams:
+    """The ``wavefront`` driver's parameters (Player's names and units; module docstring)."""
+
+    #: Player options that have no effect here: logged and dropped
+    IGNORED: ClassVar[tuple[str, ...]] = ("cspace_file", "force_map_refresh", "alwayson", "add_rotational_waypoints")
+
+    safety_dist: float = param(0.25, min=0.0, max=10.0, doc="m")
+    distance_epsilon: float = param(0.5, min=0.0, max=10.0, doc="m")
+    angle_epsilon: float = param(10.0, min=0.0, max=180.0, doc="deg")
+    replan_dist_thresh: float = param(2.0, min=-1.0, doc="m; -1: never")
+    replan_min_time: float = param(2.0, min=-1.0, doc="s; -1: never")
+    robot_radius: float | None = param(None, min=0.0, max=10.0, doc="m; default: the local planner's")
+    max_radius: float = param(1.0, min=0.0, max=50.0, doc="m")
+    dist_penalty: float = param(1.0, min=0.0, max=1000.0)
+
+
+#: the parameter names, in declaration order
+PARAMS = tuple(f.name for f in fields(WavefrontParams))
 
 
 @register("wavefront")
@@ -67,8 +80,6 @@ class WavefrontDriver(Driver):
 
     def __init__(self, cfg, server):
         super().__init__(cfg, server)
-        import difflib
-
         out = self.required("position2d", "output")
         inp = self.required("position2d", "input")
         maps = self.required("map")
@@ -78,24 +89,13 @@ class WavefrontDriver(Driver):
                 '(localized) position2d and a map, e.g. requires = ["output::r0:position2d:1", '
                 '"input::r0:position2d:2", "r0:map:0"]'
             )
-        for k in cfg.params:
-            if k in IGNORED:
-                self.log.warning("%s: Player option %r has no effect here", cfg.where, k)
-            elif k not in PARAMS:
-                close = difflib.get_close_matches(k, PARAMS, n=1)
-                hint = f"did you mean {close[0]!r}?" if close else f"known: {', '.join(PARAMS)}"
-                raise ConfigError(f"{cfg.where}: unknown parameter {k!r}; {hint}")
         self.out_addr, self.in_addr, self.map_addr = out[0].without_key(), inp[0].without_key(), maps[0].without_key()
-        self.safety_dist = num_param(cfg, "safety_dist", 0.25, lo=0.0, hi=10.0)
-        self.distance_epsilon = num_param(cfg, "distance_epsilon", 0.5, lo=0.0, hi=10.0)
-        self.angle_epsilon = deg_param(cfg, "angle_epsilon", 10.0, lo=0.0, hi=180.0)
-        self.replan_dist_thresh = num_param(cfg, "replan_dist_thresh", 2.0, lo=-1.0)
-        self.replan_min_time = num_param(cfg, "replan_min_time", 2.0, lo=-1.0)
-        self.robot_radius = cfg.param("robot_radius")
-        if self.robot_radius is not None:
-            self.robot_radius = num_param(cfg, "robot_radius", 0.25, lo=0.0, hi=10.0)
-        self.max_radius = num_param(cfg, "max_radius", 1.0, lo=0.0, hi=50.0)
-        self.dist_penalty = num_param(cfg, "dist_penalty", 1.0, lo=0.0, hi=1000.0)
+        p = self.settings = parse_params(WavefrontParams, cfg, log=self.log)
+        self.safety_dist, self.distance_epsilon = p.safety_dist, p.distance_epsilon
+        self.angle_epsilon = math.radians(p.angle_epsilon)
+        self.replan_dist_thresh, self.replan_min_time = p.replan_dist_thresh, p.replan_min_time
+        self.robot_radius = p.robot_radius
+        self.max_radius, self.dist_penalty = p.max_radius, p.dist_penalty
         self.exec = None
         self.map_info = None
         self.loc = None  # localized pose (map)

@@ -52,7 +52,6 @@ Not thread-safe: call an :class:`Amcl` from one thread.
 
 from __future__ import annotations
 
-import difflib
 import math
 from dataclasses import dataclass, fields
 from typing import Any
@@ -65,6 +64,7 @@ from scipy.sparse.csgraph import connected_components
 
 from rsal.geometry import compose_array, relative, wrap
 
+from ..params import unknown_key
 from .grid import NavGrid
 
 __all__ = [
@@ -145,9 +145,7 @@ class AmclParams:
                 continue
             if key in _MOVED_KEYS:
                 raise ValueError(f"amcl parameter {key!r} is not a filter parameter: {_MOVED_KEYS[key]}")
-            close = difflib.get_close_matches(str(key), names, n=1, cutoff=0.6)
-            hint = f"did you mean {close[0]!r}?" if close else f"known parameters: {', '.join(names)}"
-            raise ValueError(f"unknown amcl parameter {key!r}; {hint}")
+            raise ValueError(unknown_key(str(key), names, what="amcl parameter"))
         return cls(**dict(d))
 
 

@@ -49,12 +49,11 @@ What every planner shares, and therefore lives here:
   swept-corridor test (:func:`corridor_clear`), all vectorised with numpy over the points.
 
 Units inside the objects are SI (metres, radians, seconds). Closed-loop runs on the simulator are
-in :mod:`mrs_bridge.nav.localsim`.
+in :mod:`mrs_bridge.rigs.localsim`.
 """
 
 from __future__ import annotations
 
-import difflib
 import logging
 import math
 from collections import deque
@@ -67,6 +66,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from rsal.geometry import TWO_PI, wrap
+
+from ..params import did_you_mean
 
 __all__ = [
     "KEEP_RIGHT",
@@ -388,8 +389,8 @@ class LocalPlanner:
         names = list(cls.PARAMS)
         for key in params:
             if key not in cls.PARAMS:
-                close = difflib.get_close_matches(str(key), names, n=1, cutoff=0.0)
-                hint = f"did you mean {close[0]!r}? " if close else ""
+                close = did_you_mean(str(key), names, cutoff=0.0)
+                hint = f"did you mean {close!r}? " if close else ""
                 raise ValueError(f"{cls.name}: unknown parameter {key!r}; {hint}(valid: {', '.join(sorted(names))})")
         out: dict[str, Any] = {}
         for key, spec in cls.PARAMS.items():

@@ -1,5 +1,5 @@
 """The default navigation profile of a simulated Pioneer: the parameters ``rsal sim --nav`` gives
-its drivers and the in-process stack (:mod:`mrs_bridge.nav.stacksim`) uses, in one place.
+its drivers and the in-process stack (:mod:`mrs_bridge.rigs.stacksim`) uses, in one place.
 
 Values follow the thesis's appendix A.3 where it sets them (wavefront ``distance_epsilon`` 0.4 m,
 ``angle_epsilon`` 10°, local planner tolerances tighter than the global ones, "set this to be

@@ -22,10 +22,10 @@ from mrs_bridge.nav.local import (
     free_path_length,
     polar_ranges,
 )
-from mrs_bridge.nav.localsim import Agent, in_contact, laser_points, run
 from mrs_bridge.nav.nd import ND
 from mrs_bridge.nav.snd import SND
 from mrs_bridge.nav.vfh import VFH
+from mrs_bridge.rigs.localsim import Agent, in_contact, laser_points, run
 from rsal.geometry import wrap
 from simulator import load_world
 from simulator.presets import box, pioneer2dx, urg04lx

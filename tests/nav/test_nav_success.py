@@ -2,7 +2,7 @@
 
 Random reachable start/goal pairs (4-12 m apart) for r0 on maps/floor.world, two other Pioneers
 moving around the middle of each route as dynamic obstacles (not on the map), the full stack of
-``rsal sim --nav`` (:mod:`mrs_bridge.nav.stacksim`). Every goal must be reached (true final
+``rsal sim --nav`` (:mod:`mrs_bridge.rigs.stacksim`). Every goal must be reached (true final
 position within wavefront's 0.4 m plus 0.15 m) with no contact with any wall or robot. The
 20-pair figures per planner are measured by ``benchmarks/bench_nav.py`` (docs/benchmarks.md);
 this test runs a seeded sample of them.
@@ -19,7 +19,7 @@ WORLD = str(ROOT / "maps" / "floor.world")
 
 @pytest.mark.parametrize("local", ["vfh", "nd", "snd"])
 def test_random_goals_reached_without_collision(local):
-    from mrs_bridge.nav.stacksim import goal_trials
+    from mrs_bridge.rigs.stacksim import goal_trials
 
     results = goal_trials(WORLD, local, 3, seed=11)
     bad = [r for r in results if not r.reached or r.collided]
@@ -31,8 +31,8 @@ def test_unreachable_goal_is_invalid_at_once():
     import math
     import time
 
-    from mrs_bridge.nav.stacksim import RobotStack, grid_of, run_goal
     from mrs_bridge.nav.wavefront import Wavefront
+    from mrs_bridge.rigs.stacksim import RobotStack, grid_of, run_goal
     from simulator.loader import load_world
     from simulator.world import World
 

@@ -22,7 +22,7 @@ import numpy as np
 from rsal.geometry import compose, invert, wrap
 from simulator.world import World
 
-from .local import LocalPlanner, Status
+from ..nav.local import LocalPlanner, Status
 
 __all__ = ["Agent", "RunResult", "Trial", "draw_trial", "in_contact", "laser_points", "run", "run_trial"]
 

@@ -27,18 +27,18 @@ from rsal.interfaces.ranger import RangerGeometry
 from simulator.world import World
 
 from ..drivers.navcommon import Handover
-from . import profile
-from .amcl import Amcl, AmclParams
-from .grid import NavGrid
-from .wavefront import Executive, PlanError, Wavefront
+from ..nav import profile
+from ..nav.amcl import Amcl, AmclParams
+from ..nav.grid import NavGrid
+from ..nav.wavefront import Executive, PlanError, Wavefront
 
 __all__ = ["RobotStack", "GoalResult", "make_local", "grid_of", "in_contact"]
 
 
 def make_local(name: str, geometry=None, params: dict | None = None):
-    from .nd import ND
-    from .snd import SND
-    from .vfh import VFH
+    from ..nav.nd import ND
+    from ..nav.snd import SND
+    from ..nav.vfh import VFH
 
     cls = {"vfh": VFH, "nd": ND, "snd": SND}[name]
     p = dict(profile.LOCAL[name])
