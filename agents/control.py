@@ -28,13 +28,13 @@ grid of a ``map`` device, served as a PNG with its origin and resolution.
 
 The API (``docs/control.md``) validates every input; a bad one is answered with HTTP 400 and
 ``{"error": "<one line>"}``, never a traceback. SIGINT or SIGTERM stop every child by its PID
-(SIGINT, a deadline, then SIGKILL) and exit 0.
+(SIGINT, a deadline, SIGTERM, then SIGKILL: :class:`rsal.procs.Child`, the one supervisor of
+``rsal run``, ``rsal control`` and ``rsal demo``) and exit 0.
 """
 
 from __future__ import annotations
 
 import argparse
-import collections
 import io
 import json
 import logging
@@ -43,7 +43,6 @@ import os
 import re
 import signal
 import socket
-import subprocess
 import sys
 import threading
 import time
@@ -57,7 +56,7 @@ from urllib.parse import parse_qs, urlsplit
 import numpy as np
 
 from rsal.errors import RsalError
-from rsal.procs import spawn
+from rsal.procs import Child, stop_all
 
 __all__ = ["ApiError", "Control", "map_png", "register", "run_control"]
 
@@ -71,6 +70,8 @@ STATIC_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; ch
 STOP_DEADLINES = {"run": 45.0, "agent": 15.0, "watch": 10.0}
 #: output lines kept per child
 KEEP_LINES = 40
+#: seconds a child gets after SIGTERM (when SIGINT was not enough) before SIGKILL
+TERM_DEADLINE = 5.0
 _NAME = re.compile(r"^[A-Za-z0-9_\-.]+$")
 _WATCH_URL = re.compile(r"web viewer: (http://\S+)")
 MAX_BODY = 64 * 1024
@@ -90,6 +91,15 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _steps(kind: str) -> tuple[tuple[int, float], ...]:
+    """How a child of ``kind`` is stopped: SIGINT and its deadline, SIGTERM, then SIGKILL."""
+    return ((signal.SIGINT, STOP_DEADLINES[kind]), (signal.SIGTERM, TERM_DEADLINE))
+
+
+def _killed(c: Child, waited: float) -> None:
+    c.lines.append(f"[control] pid {c.pid} did not stop within {waited:g} s; killed")
+
+
 def map_png(cells: np.ndarray) -> bytes:
     """A Player grid (int8 rows from the bottom, -1 free, 0 unknown, +1 occupied) as a grey PNG
     with the top row first: free white, unknown grey, occupied black."""
@@ -102,101 +112,13 @@ def map_png(cells: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-# ---------------------------------------------------------------------------- children
-class ChildProcess:
-    """A process started by the control (own session), its merged output kept as the last lines."""
-
-    def __init__(self, kind: str, name: str, argv: list[str], shown: str, env: dict, cwd: Path, on_line=None):
-        self.kind = kind  # run, agent, watch
-        self.name = name
-        self.shown = shown
-        self.started = time.time()
-        self.lines: collections.deque[str] = collections.deque(maxlen=KEEP_LINES)
-        self.stopping = False
-        self.stopped_by_user = False
-        self.on_line = on_line  # called with each output line, on the reader thread
-        self.p = spawn(  # dies with the control center, although started on a request's thread
-            argv,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            env=env,
-            cwd=cwd,
-            start_new_session=True,
-            text=True,
-            errors="replace",
-        )
-        self._reader = threading.Thread(target=self._read, name=f"control-{kind}-{self.p.pid}", daemon=True)
-        self._reader.start()
-
-    @property
-    def pid(self) -> int:
-        return self.p.pid
-
-    def _read(self) -> None:
-        for raw in self.p.stdout:
-            line = raw.rstrip("\n")
-            if not line:
-                continue
-            self.lines.append(line)
-            if self.on_line is not None:
-                try:
-                    self.on_line(line)
-                except Exception:
-                    log.exception("%s: line handler failed", self.name)
-        self.p.stdout.close()
-
-    def poll(self) -> int | None:
-        return self.p.poll()
-
-    @property
-    def state(self) -> str:
-        rc = self.p.poll()
-        if rc is None:
-            return "stopping" if self.stopping else "running"
-        return "stopped" if self.stopped_by_user else ("finished" if rc == 0 else "failed")
-
-    def signal(self, sig: int) -> None:
-        if self.p.poll() is None:
-            try:
-                os.kill(self.p.pid, sig)
-            except ProcessLookupError:
-                pass
-
-    def stop(self, deadline: float) -> int:
-        """SIGINT, wait up to ``deadline`` seconds, then SIGKILL; returns the exit code."""
-        if self.p.poll() is None:
-            self.stopping = True
-            self.stopped_by_user = True
-            self.signal(signal.SIGINT)
-            try:
-                self.p.wait(deadline)
-            except subprocess.TimeoutExpired:
-                self.lines.append(f"[control] pid {self.pid} did not stop within {deadline:g} s; killed")
-                self.signal(signal.SIGKILL)
-                self.p.wait(5)
-        self._reader.join(2.0)
-        return self.p.returncode
-
-    def info(self) -> dict:
-        return {
-            "name": self.name,
-            "pid": self.pid,
-            "state": self.state,
-            "exit_code": self.p.poll(),
-            "command": self.shown,
-            "started": self.started,
-            "lines": list(self.lines),
-        }
-
-
 @dataclass
 class Run:
     id: int
     scenario: str
     app: str
     set: dict[str, str]
-    child: ChildProcess
+    child: Child
     agents: list[str]
 
     def info(self) -> dict:
@@ -219,7 +141,7 @@ class RobotState:
     pose_source: str = ""
     goal: dict | None = None
     note: str = ""
-    wallfollow: ChildProcess | None = None
+    wallfollow: Child | None = None
     pending: set[str] = field(default_factory=set)
 
 
@@ -245,7 +167,7 @@ class Control:
         self.runs: dict[int, Run] = {}
         self._next_run = 1
         self.robots: dict[str, RobotState] = {}
-        self.watch: ChildProcess | None = None
+        self.watch: Child | None = None
         self.watch_url: str | None = None
         self._watch_tried = 0.0
         self._maps: dict[str, dict] = {}
@@ -299,16 +221,9 @@ class Control:
             runs = [r.child for r in self.runs.values()]
             walls = [st.wallfollow for st in self.robots.values() if st.wallfollow is not None]
             watch = self.watch
-        for c in runs:
-            c.signal(signal.SIGINT)
-        for c in walls:
-            c.signal(signal.SIGINT)
-        for c in runs:
-            c.stop(STOP_DEADLINES["run"])
-        for c in walls:
-            c.stop(STOP_DEADLINES["agent"])
+        stop_all(runs + walls, _steps("run"), _killed)  # together: a run stops its own children first
         if watch is not None:
-            watch.stop(STOP_DEADLINES["watch"])
+            watch.stop(_steps("watch"), _killed)
         for h in self._handles:
             try:
                 h.undeclare()
@@ -325,12 +240,14 @@ class Control:
         env["PYTHONUNBUFFERED"] = "1"
         return env
 
-    def _spawn(self, kind: str, name: str, args: list[str], on_line=None) -> ChildProcess:
+    def _spawn(self, kind: str, name: str, args: list[str], on_line=None) -> Child:
         if self._stop.is_set():
             raise ApiError("the control center is stopping; nothing new is started", 503)
         argv = [sys.executable, "-m", "rsal.cli", *args, "--connect", self.endpoint, *self.zenoh_flags]
         shown = " ".join(["rsal", *args, "--connect", self.endpoint, *self.zenoh_flags])
-        return ChildProcess(kind, name, argv, shown, self._env(), Path.cwd(), on_line)
+        return Child(
+            name, argv, kind=kind, shown=shown, env=self._env(), cwd=Path.cwd(), on_line=on_line, keep=KEEP_LINES
+        )
 
     def _maybe_start_watch(self) -> None:
         """Start ``rsal watch --serve`` once devices are alive (again if it ended, at most every 10 s)."""
@@ -505,7 +422,7 @@ class Control:
             raise ApiError(f"run {rid} is not running ({run.child.state}, exit code {run.child.poll()})")
         if not run.child.stopping:
             run.child.stopping = True
-            threading.Thread(target=run.child.stop, args=(STOP_DEADLINES["run"],), daemon=True).start()
+            threading.Thread(target=run.child.stop, args=(_steps("run"), _killed), daemon=True).start()
         return run.info()
 
     # ------------------------------------------------------------------ state
@@ -644,7 +561,7 @@ class Control:
                 has_planner = f"{name}:planner:0" in self.devices
             wf = st.wallfollow
             if wf is not None and wf.poll() is None:
-                wf.stop(STOP_DEADLINES["agent"])
+                wf.stop(_steps("agent"), _killed)
                 done_what.append("wall-following stopped")
             if has_planner:
                 try:
@@ -678,7 +595,7 @@ class Control:
             else:
                 if not running:
                     raise ApiError(f"robot {name!r} is not wall-following from this page")
-                threading.Thread(target=wf.stop, args=(STOP_DEADLINES["agent"],), daemon=True).start()
+                threading.Thread(target=wf.stop, args=(_steps("agent"), _killed), daemon=True).start()
                 wf.stopping = True
                 st.note = "wall-following stopping"
             return {"ok": True, "robot": name, "note": st.note}

@@ -1,7 +1,8 @@
 """``rsal run SCENARIO --app NAME``: start an application of a scenario file and judge the run
 (thesis fig. 3.11: Jadex application files; the scenarios of 4.2).
 
-The runner starts, each as its own process (``start_new_session=True``, PIDs kept and printed):
+The runner starts, each as its own process under the one supervisor (:class:`rsal.procs.Child`: own
+session, PIDs kept and printed, output relayed):
 
 1. the simulator, ``rsal sim WORLD --listen EP`` (if the application has one), and waits until its
    ``sim:simulation:0`` device is alive;
@@ -28,7 +29,6 @@ import collections
 import os
 import queue
 import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -39,7 +39,7 @@ from pathlib import Path
 from rsal.cliutil import positive
 from rsal.clock import ENV as clock_env
 from rsal.clock import SimClock
-from rsal.procs import die_with_parent
+from rsal.procs import Child, stop_all
 
 from .scenario import Application, Scenario, ScenarioError, check_classes, load_scenario, parse_set
 
@@ -69,67 +69,6 @@ class _Out:
 
     def say(self, text: str) -> None:
         self.line(f"[run] {text}")
-
-
-class Child:
-    """One process of the run; its output lines are relayed with ``[name]`` in front."""
-
-    def __init__(self, name: str, kind: str, argv: list[str], env: dict, out: _Out):
-        self.name = name
-        self.kind = kind  # sim, server, host
-        self.argv = argv
-        self.out = out
-        self.last_err: collections.deque[str] = collections.deque(maxlen=5)
-        self.p = subprocess.Popen(
-            argv,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            env=env,
-            start_new_session=True,
-            text=True,
-            errors="replace",
-            **die_with_parent(),
-        )
-        self.reported = False
-        self._readers = [
-            threading.Thread(target=self._relay, args=(self.p.stdout, False), daemon=True),
-            threading.Thread(target=self._relay, args=(self.p.stderr, True), daemon=True),
-        ]
-        for t in self._readers:
-            t.start()
-
-    @property
-    def pid(self) -> int:
-        return self.p.pid
-
-    def _relay(self, pipe, is_err: bool) -> None:
-        for raw in pipe:
-            line = raw.rstrip("\n")
-            if not line:
-                continue
-            if is_err:
-                self.last_err.append(line)
-            self.out.line(line if line.startswith("[") else f"[{self.name}] {line}")
-        pipe.close()
-
-    def poll(self) -> int | None:
-        return self.p.poll()
-
-    def drained(self, timeout: float = 2.0) -> None:
-        """Wait (briefly) until its output is relayed, after it exited."""
-        for t in self._readers:
-            t.join(timeout)
-
-    def last_error(self) -> str:
-        return self.last_err[-1] if self.last_err else "(no error output)"
-
-    def signal(self, sig: int) -> None:
-        if self.p.poll() is None:
-            try:
-                os.kill(self.p.pid, sig)
-            except ProcessLookupError:
-                pass
 
 
 @dataclass
@@ -250,7 +189,7 @@ class Runner:
         env = self._env()
         if kind == "host" and self.app.simulator is not None:
             env[clock_env] = SIM_NODE  # the agents follow the simulation's clock (rsal.clock)
-        c = Child(name, kind, argv, env, self.out)
+        c = Child(name, argv, kind=kind, shown=shown, env=env, forward=self.out.line, stderr_apart=True)
         self.children.append(c)
         self.out.say(f"started {name} (pid {c.pid}): {shown}")
         return c
@@ -297,18 +236,15 @@ class Runner:
         return (["--connect", self.endpoint] if self.endpoint else []) + self.zenoh_flags
 
     def _stop_children(self) -> None:
+        """SIGTERM to the agent hosts, then the servers, then the simulator, each group with its
+        deadline, and SIGKILL by PID to whatever is left (:func:`rsal.procs.stop_all`)."""
+
+        def killed(c: Child, waited: float) -> None:
+            self.out.say(f"{c.name} (pid {c.pid}) did not stop within {waited:g} s; killed")
+
         for kind in ("host", "server", "sim"):
             group = [c for c in self.children if c.kind == kind and c.poll() is None]
-            for c in group:
-                c.signal(signal.SIGTERM)
-            deadline = time.monotonic() + STOP_DEADLINES[kind]
-            for c in group:
-                try:
-                    c.p.wait(max(0.0, deadline - time.monotonic()))
-                except subprocess.TimeoutExpired:
-                    self.out.say(f"{c.name} (pid {c.pid}) did not stop within {STOP_DEADLINES[kind]:g} s; killed")
-                    c.signal(signal.SIGKILL)
-                    c.p.wait(5)
+            stop_all(group, [(signal.SIGTERM, STOP_DEADLINES[kind])], killed)
         for c in self.children:
             c.drained()
 
@@ -386,7 +322,7 @@ class Runner:
                 continue
             what = {"sim": "the simulator", "server": "device server", "host": "agent host"}[c.kind]
             name = "" if c.kind == "sim" else f" {c.name!r}"
-            self.result = (False, f"{what}{name} (pid {c.pid}) exited with code {rc}: {c.last_error()}")
+            self.result = (False, f"{what}{name} (pid {c.pid}) {c.exit_reason()}")
             return
         t = self.tally
         if t.final is not None:
