@@ -17,7 +17,7 @@ category, the class also derives from it, so ``except ValueError`` still works::
     ├── ScenarioError (ValueError)              agents.scenario: a scenario file is wrong (file:line)
     ├── HostError (ValueError)                  agents.hostproc: an agent host's description is wrong
     ├── AgentClassError (LookupError)           agents.registry: no such agent class
-    ├── ApiError (ValueError)                   agents.control: a bad request to the control center
+    ├── ApiError (ValueError)                   agents.control.api: a bad request to the control center
     └── _Failure                                agents.demo: the demo cannot go on (private)
 
     SimulatorError                              simulator.errors: a root of its own, see below
