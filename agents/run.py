@@ -7,7 +7,9 @@ session, PIDs kept and printed, output relayed):
 1. the simulator, ``rsal sim WORLD --listen EP`` (if the application has one), and waits until its
    ``sim:simulation:0`` device is alive;
 2. the device servers, ``rsal serve CONFIG --connect EP``;
-3. one agent host, ``python -m agents.hostproc``, per host group of agents (:mod:`agents.hostproc`).
+3. one agent host, ``python -m agents.hostproc SCENARIO --app NAME --host GROUP [--set ..]``, per host
+   group of agents (:mod:`agents.hostproc`): it reads the same scenario file with the same
+   overrides, so the scenario has one schema, :mod:`agents.scenario`.
 
 ``EP`` is a free loopback port unless ``--listen EP`` or ``--connect EP`` (join a running fabric)
 says otherwise. The runner's own Zenoh session subscribes ``svc/outcome/*`` and the agent tokens
@@ -30,7 +32,6 @@ import os
 import queue
 import signal
 import sys
-import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -209,24 +210,18 @@ class Runner:
         argv = [sys.executable, "-m", "rsal.cli", "sim", str(s.world), *flags]
         self._start("sim", "sim", argv, " ".join(["rsal sim", _rel(s.world), *flags]))
 
-    def _start_rest(self, tmp: Path) -> None:
+    def _start_rest(self) -> None:
         for i, cfg in enumerate(self.app.servers):
             name = "serve" if len(self.app.servers) == 1 else f"serve{i}"
             flags = self._member_flags()
             argv = [sys.executable, "-m", "rsal.cli", "serve", str(cfg), *flags]
             self._start(name, "server", argv, " ".join(["rsal serve", _rel(cfg), *flags]))
-        from .hostproc import AgentSpec, HostSpec
-
         for group, entries in self.app.groups().items():
-            spec = HostSpec(
-                group,
-                tuple(AgentSpec(a.id, a.cls, a.robot, a.args) for a in entries),
-                dict(self.sc.arguments),
-                report_every=self.args.host_report,
-            )
-            path = tmp / f"host-{group}.json"
-            path.write_text(spec.to_json())
-            argv = [sys.executable, "-m", "agents.hostproc", "--spec", str(path), "--name", group]
+            # the host reads the scenario this run parsed, with the same overrides (no second schema)
+            argv = [sys.executable, "-m", "agents.hostproc", str(self.sc.source.resolve()), "--app", self.app.name]
+            argv += ["--host", group, "--report-every", f"{self.args.host_report:g}"]
+            for item in self.args.set or []:
+                argv += ["--set", item]
             argv += self._member_flags()
             ids = ", ".join(a.id for a in entries)
             self._start(group, "host", argv, f"agent host with {len(entries)} agent(s): {ids}")
@@ -353,7 +348,7 @@ class Runner:
             self.result = (False, why)
 
     # ------------------------------------------------------------------ main
-    def _loop(self, t0: float, tmp: Path) -> None:
+    def _loop(self, t0: float) -> None:
         """Until the run is over or a signal came: events, phases, end checks, progress lines."""
         next_progress = t0 + self.progress
         while self.result is None and not self.signalled:
@@ -361,7 +356,7 @@ class Runner:
             now = self._now()
             if self.phase == "sim" and SIM_DEVICE in self.devices:
                 self.out.say(f"simulator up after {now - t0:.1f} s: {len(self.devices)} device(s)")
-                self._start_rest(tmp)
+                self._start_rest()
                 self.phase = "run"
             self._check(now, t0)
             if self.result is None and now >= next_progress:
@@ -384,25 +379,24 @@ class Runner:
         self.out.say(f"scenario {self.sc.name}, application {self.app.name}{desc}; fabric {where}")
         interrupted = ""
         try:
-            with tempfile.TemporaryDirectory(prefix="rsal-run-") as tmp:
-                try:
-                    self._open()
-                except ValueError as e:
-                    _err(str(e))
-                    return 1
-                if self.app.simulator is not None:
-                    self.phase = "sim"
-                    self._start_sim()
-                else:
-                    self._start_rest(Path(tmp))
-                    self.phase = "run"
-                self._loop(t0, Path(tmp))
-                if self.signalled:
-                    interrupted = self.signalled[0]
-                    self.out.say(f"{interrupted}: stopping")
-                elif not self.result[0]:
-                    _err(self.result[1])
-                self._stop_children()
+            try:
+                self._open()
+            except ValueError as e:
+                _err(str(e))
+                return 1
+            if self.app.simulator is not None:
+                self.phase = "sim"
+                self._start_sim()
+            else:
+                self._start_rest()
+                self.phase = "run"
+            self._loop(t0)
+            if self.signalled:
+                interrupted = self.signalled[0]
+                self.out.say(f"{interrupted}: stopping")
+            elif not self.result[0]:
+                _err(self.result[1])
+            self._stop_children()
         finally:
             self._stop_children()  # also after an unexpected error: no child outlives the run
             self._close()
