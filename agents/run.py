@@ -22,6 +22,9 @@ child that exits unexpectedly (one line naming it and its last stderr line). A b
 argument exits 2 with one line; SIGINT/SIGTERM stop everything and exit 130. Stopping sends SIGTERM
 to the agent hosts, then the servers, then the simulator, each with a deadline, and SIGKILL by PID
 to whatever is left. The format and the lines printed are described in ``docs/scenarios.md``.
+
+(Somewhat over 500 lines: the runner's phases, end conditions and summary are one state machine
+over one event queue; the processes themselves are :mod:`rsal.procs`'s.)
 """
 
 from __future__ import annotations
@@ -40,7 +43,8 @@ from pathlib import Path
 from rsal.cliutil import positive
 from rsal.clock import ENV as clock_env
 from rsal.clock import SimClock
-from rsal.procs import Child, stop_all
+from rsal.procs import Child, python_env, stop_all
+from rsal.transport import free_port
 
 from .scenario import Application, Scenario, ScenarioError, check_classes, load_scenario, parse_set
 
@@ -49,7 +53,6 @@ __all__ = ["register", "run_scenario"]
 PROG = "rsal run"
 SIM_NODE = "sim"  # the node of the simulator that rsal sim serves
 SIM_DEVICE = f"rsal/{SIM_NODE}/simulation/0"
-REPO_ROOT = Path(__file__).resolve().parent.parent
 #: seconds each kind of child gets to exit after SIGTERM before SIGKILL
 STOP_DEADLINES = {"host": 15.0, "server": 10.0, "sim": 10.0}
 
@@ -118,7 +121,7 @@ class Runner:
         elif getattr(args, "config", None) and not args.listen:
             self.endpoint, self.sim_flag = None, ""  # the config file says where the fabric is
         else:
-            self.endpoint = args.listen or f"tcp/127.0.0.1:{_free_port()}"
+            self.endpoint = args.listen or f"tcp/127.0.0.1:{free_port()}"
             self.sim_flag = "--listen"
 
     # ------------------------------------------------------------------ fabric
@@ -177,17 +180,8 @@ class Runner:
                 pass
 
     # ------------------------------------------------------------------ children
-    def _env(self) -> dict:
-        env = dict(os.environ)
-        paths = [str(self.sc.source.parent.resolve()), os.getcwd(), str(REPO_ROOT)]
-        if env.get("PYTHONPATH"):
-            paths.append(env["PYTHONPATH"])
-        env["PYTHONPATH"] = os.pathsep.join(dict.fromkeys(paths))
-        env["PYTHONUNBUFFERED"] = "1"
-        return env
-
     def _start(self, name: str, kind: str, argv: list[str], shown: str) -> Child:
-        env = self._env()
+        env = python_env(self.sc.source.parent.resolve())
         if kind == "host" and self.app.simulator is not None:
             env[clock_env] = SIM_NODE  # the agents follow the simulation's clock (rsal.clock)
         c = Child(name, argv, kind=kind, shown=shown, env=env, forward=self.out.line, stderr_apart=True)
@@ -423,14 +417,6 @@ class Runner:
             + (f"; times on the simulation's clock ({wall:.1f} s of wall time)" if self._sim_base is not None else "")
         )
         return code
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _rel(p: Path) -> str:

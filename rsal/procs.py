@@ -33,11 +33,15 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 from typing import Any
 
-__all__ = ["DEFAULT_STEPS", "Child", "die_with_parent", "spawn", "stop_all"]
+__all__ = ["DEFAULT_STEPS", "Child", "die_with_parent", "python_env", "spawn", "stop_all"]
 
 log = logging.getLogger(__name__)
+
+#: the repository root: children of a checkout import its packages from here
+REPO_ROOT = Path(__file__).resolve().parent.parent
 
 _PR_SET_PDEATHSIG = 1
 
@@ -74,6 +78,19 @@ def spawn(args, **kw: Any) -> subprocess.Popen:
         if _launcher is None:
             _launcher = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rsal-launcher")
     return _launcher.submit(subprocess.Popen, args, **kw).result()
+
+
+def python_env(*paths: str | os.PathLike) -> dict[str, str]:
+    """The environment of a Python child of ours: ``paths``, the working directory and the
+    repository root in front of ``PYTHONPATH`` (so ``module:Class`` names next to a file import),
+    and unbuffered output (so its lines are relayed as they are written)."""
+    env = dict(os.environ)
+    front = [str(p) for p in paths] + [os.getcwd(), str(REPO_ROOT)]
+    if env.get("PYTHONPATH"):
+        front.append(env["PYTHONPATH"])
+    env["PYTHONPATH"] = os.pathsep.join(dict.fromkeys(front))
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
 
 
 #: how :meth:`Child.stop` escalates: each signal with the seconds it gets, then SIGKILL

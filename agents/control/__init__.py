@@ -39,16 +39,15 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import re
 import signal
-import socket
 import sys
 import threading
 import time
 from pathlib import Path
 
-from rsal.procs import Child, stop_all
+from rsal.procs import Child, python_env, stop_all
+from rsal.transport import free_port
 
 from .api import ApiError, Run, ScenarioApi, map_png
 from .console import RobotConsole, RobotState
@@ -59,7 +58,6 @@ __all__ = ["ApiError", "Control", "Handler", "Run", "RobotState", "map_png", "re
 log = logging.getLogger(__name__)
 
 PROG = "rsal control"
-REPO_ROOT = Path(__file__).resolve().parents[2]
 #: seconds a child gets after SIGINT before SIGTERM: a run stops its agent hosts, servers and simulator
 STOP_DEADLINES = {"run": 45.0, "agent": 15.0, "watch": 10.0}
 #: output lines kept per child
@@ -67,12 +65,6 @@ KEEP_LINES = 40
 #: seconds a child gets after SIGTERM (when SIGINT was not enough) before SIGKILL
 TERM_DEADLINE = 5.0
 _WATCH_URL = re.compile(r"web viewer: (http://\S+)")
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _steps(kind: str) -> tuple[tuple[int, float], ...]:
@@ -172,20 +164,13 @@ class Control(ScenarioApi, RobotConsole):
             self.fabric.close()
 
     # ------------------------------------------------------------------ children
-    def _env(self) -> dict:
-        env = dict(os.environ)
-        paths = [os.getcwd(), str(REPO_ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])
-        env["PYTHONPATH"] = os.pathsep.join(dict.fromkeys(paths))
-        env["PYTHONUNBUFFERED"] = "1"
-        return env
-
     def _spawn(self, kind: str, name: str, args: list[str], on_line=None) -> Child:
         if self._stop.is_set():
             raise ApiError("the control center is stopping; nothing new is started", 503)
         argv = [sys.executable, "-m", "rsal.cli", *args, "--connect", self.endpoint, *self.zenoh_flags]
         shown = " ".join(["rsal", *args, "--connect", self.endpoint, *self.zenoh_flags])
         return Child(
-            name, argv, kind=kind, shown=shown, env=self._env(), cwd=Path.cwd(), on_line=on_line, keep=KEEP_LINES
+            name, argv, kind=kind, shown=shown, env=python_env(), cwd=Path.cwd(), on_line=on_line, keep=KEEP_LINES
         )
 
     def _stop_child(self, c: Child, kind: str, *, background: bool = False) -> None:
@@ -207,7 +192,7 @@ class Control(ScenarioApi, RobotConsole):
             if time.monotonic() - self._watch_tried < 10.0:
                 return
             self._watch_tried = time.monotonic()
-        web, grpc = _free_port(), _free_port()
+        web, grpc = free_port(), free_port()
         args = ["watch", "--serve", "--web-port", str(web), "--grpc-port", str(grpc), "--wait", "30"]
 
         def on_line(line: str) -> None:
@@ -252,7 +237,7 @@ def run_control(args: argparse.Namespace) -> int:
     if args.connect:
         endpoint, targs = args.connect, TransportArgs(connect=[args.connect])
     else:
-        endpoint = args.listen or f"tcp/127.0.0.1:{_free_port()}"
+        endpoint = args.listen or f"tcp/127.0.0.1:{free_port()}"
         targs = TransportArgs(listen=[endpoint])
     flags: list[str] = []
     if args.config:

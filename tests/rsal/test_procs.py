@@ -12,7 +12,7 @@ import time
 
 from conftest import ROOT, wait_until
 
-from rsal.procs import Child, stop_all
+from rsal.procs import REPO_ROOT, Child, python_env, stop_all
 
 PARENT = """
 import subprocess, sys, time
@@ -137,3 +137,12 @@ def test_stop_all_runs_one_deadline_for_all_children():
     assert all(k.poll() == -signal.SIGTERM for k in kids)
     assert took < 2.5, f"three children waited {took:.1f} s: their deadlines did not run together"
     stop_all(kids)  # stopped children: nothing to do
+
+
+def test_python_env_puts_the_given_folders_then_cwd_and_the_repository_first(monkeypatch, tmp_path):
+    monkeypatch.setenv("PYTHONPATH", "/elsewhere")
+    (tmp_path / "cwd").mkdir()
+    monkeypatch.chdir(tmp_path / "cwd")
+    env = python_env(tmp_path, tmp_path)  # a folder named twice is listed once
+    assert env["PYTHONPATH"].split(os.pathsep) == [str(tmp_path), str(tmp_path / "cwd"), str(REPO_ROOT), "/elsewhere"]
+    assert env["PYTHONUNBUFFERED"] == "1" and (REPO_ROOT / "rsal" / "procs.py").is_file()
