@@ -52,7 +52,8 @@ def _yaml_arg(text: str) -> tuple[str, object]:
 
 
 def run_agent(args: argparse.Namespace) -> int:
-    from .hostproc import AgentSpec, HostError, build_agent, serve_agents
+    from .hostproc import HostError, build_agent, serve_agents
+    from .scenario import AgentEntry
 
     robot = args.robot or ""
     short = args.cls.rpartition(":")[2].lower()
@@ -68,7 +69,7 @@ def run_agent(args: argparse.Namespace) -> int:
     if args.pose is not None:
         common["pose"] = list(args.pose)
     try:
-        agent = build_agent(AgentSpec(agent_id, args.cls, robot, dict(args.arg or [])), common)
+        agent = build_agent(AgentEntry(short, args.cls, agent_id, robot, dict(args.arg or [])), common)
     except HostError as e:
         return _fail(str(e))
 

@@ -38,6 +38,7 @@ from collections.abc import Awaitable, Callable, Collection
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from rsal.clock import clock, wait_for
 from rsal.msgs import MessageError, get_float, get_str
 
 from .services import Message, check_name
@@ -199,7 +200,9 @@ class Initiator:
     ) -> Result:
         """Announce ``task``, collect proposals for ``deadline`` seconds (less when every agent named
         in ``participants`` has answered), accept the lowest cost (ties: the smaller agent id), reject
-        the others, and wait up to ``done_deadline`` seconds for the winner's answer."""
+        the others, and wait up to ``done_deadline`` seconds for the winner's answer. Both count
+        seconds of the process's clock (:func:`rsal.clock.clock`: simulated seconds when the agents
+        follow the simulation's clock), so a call means the same at any speed-up."""
         if not deadline > 0 or not done_deadline > 0:
             raise ValueError("deadline and done_deadline must be positive numbers of seconds")
         if not isinstance(task, dict):
@@ -215,13 +218,13 @@ class Initiator:
                 conv,
                 to="",
                 task=dict(task),
-                reply_by=time.time() + deadline,
+                reply_by=time.time() + clock().wall(deadline),  # on the wire: wall seconds since the epoch
                 participants=sorted(named or ()),
             )
             if named is not None and not named:
                 call.answered.set_result(None)
             try:
-                await asyncio.wait_for(asyncio.shield(call.answered), deadline)
+                await wait_for(asyncio.shield(call.answered), deadline)
             except TimeoutError:
                 pass
             call.collecting = False
@@ -236,7 +239,7 @@ class Initiator:
                 if other != winner:
                     self._send(REJECT, conv, to=other)
             try:
-                await asyncio.wait_for(asyncio.shield(call.finished), done_deadline)
+                await wait_for(asyncio.shield(call.finished), done_deadline)
             except TimeoutError:
                 res.outcome = "timeout"
             return res

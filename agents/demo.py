@@ -21,16 +21,14 @@ import argparse
 import asyncio
 import math
 import signal
-import subprocess
 import sys
-import threading
 import time
-from collections import Counter, deque
+from collections import Counter
 from pathlib import Path
 
 from rsal.cliutil import positive
 from rsal.errors import RsalError
-from rsal.procs import die_with_parent
+from rsal.procs import Child
 from rsal.transport import DEFAULT_ENDPOINT, TransportArgs, port_free
 
 __all__ = ["register", "run_demo"]
@@ -59,10 +57,9 @@ def run_demo(args: argparse.Namespace) -> int:
     t_start = time.monotonic()
     cmd = [sys.executable, "-m", "rsal.cli", "sim", str(world), "--listen", endpoint, "--speedup", str(args.speedup)]
     print(f"[demo] starting the simulator: {world.name} at {args.speedup:g}x real time on {endpoint}", flush=True)
-    sim = subprocess.Popen(
-        cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True, **die_with_parent()
-    )
-    threading.Thread(target=_relay, args=(sim,), name="sim-output", daemon=True).start()
+    # its output is read (so its pipe never fills), the last lines kept for error messages, and its
+    # progress and error lines shown as they come
+    sim = Child("sim", cmd, kind="sim", on_line=_relay, keep=15)
     stopping: list[int] = []
     old = {s: signal.signal(s, lambda n, f: stopping.append(n)) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -71,18 +68,12 @@ def run_demo(args: argparse.Namespace) -> int:
         print(f"rsal demo: {e}", file=sys.stderr, flush=True)
         return 130 if stopping else 1
     finally:
-        if sim.poll() is None:
-            sim.send_signal(signal.SIGTERM)
-            try:
-                sim.wait(10)
-            except subprocess.TimeoutExpired:
-                sim.kill()
-                sim.wait(5)
+        sim.stop(_SIM_STOP)
         for s, h in old.items():
             signal.signal(s, h)
 
 
-async def _demo(args: argparse.Namespace, sim: subprocess.Popen, stopping: list[int], t_start: float) -> int:
+async def _demo(args: argparse.Namespace, sim: Child, stopping: list[int], t_start: float) -> int:
     from rsal.client import Fabric
     from rsal.msgs import RpcError
     from rsal.transport import open_session
@@ -209,28 +200,19 @@ async def _demo(args: argparse.Namespace, sim: subprocess.Popen, stopping: list[
         return 0 if ok_dist and ok_heard else 1
 
 
-_TAIL: deque[str] = deque(maxlen=15)  # the simulator's last lines, for error messages
 _RELAYED = ("[sim] compiling", "[sim] kernels", "rsal sim:")  # its progress and error lines, shown as they come
+_SIM_STOP = ((signal.SIGTERM, 10.0),)  # the simulator stops on SIGTERM; SIGKILL after 10 s
 
 
-def _relay(p: subprocess.Popen) -> None:
-    """Read the simulator's output (so its pipe never fills), show its progress and error lines."""
-    for line in p.stdout or ():
-        line = line.rstrip()
-        _TAIL.append(line)
-        if line.startswith(_RELAYED):
-            print(line, flush=True)
+def _relay(line: str) -> None:
+    if line.startswith(_RELAYED):
+        print(line, flush=True)
 
 
-def _drain(p: subprocess.Popen) -> str:
-    if p.poll() is None:
-        p.terminate()
-        try:
-            p.wait(5)
-        except subprocess.TimeoutExpired:
-            p.kill()
-    time.sleep(0.1)  # the relay thread reads the last lines the process wrote
-    return "\n".join(_TAIL)
+def _drain(sim: Child) -> str:
+    """Stop the simulator and return its last lines."""
+    sim.stop(_SIM_STOP)
+    return "\n".join(sim.lines)
 
 
 def register(sub) -> None:

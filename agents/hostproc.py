@@ -1,138 +1,79 @@
 """An agent-host process: one Zenoh session, one :class:`~agents.runtime.AgentHost`, many agents
 (thesis 3.5 and 3.6.1: the agents of an application started on a platform with their arguments).
 
-``python -m agents.hostproc --spec SPEC.json --connect ENDPOINT [--name NAME]`` (``--spec -`` or no
-``--spec`` reads the spec from stdin) is what ``rsal run`` starts for each host group of a scenario;
-``rsal agent CLASS`` runs the same code for one agent. The spec is one JSON object::
-
-    {"name": "hunters", "arguments": {"report_every": 1.0},
-     "agents": [{"id": "hunter1", "cls": "FollowAgent", "robot": "r1", "args": {"prey": "r0"}}],
-     "tolerate_failures": false, "report_every": 5.0, "duration": null}
+``python -m agents.hostproc SCENARIO --app NAME --host GROUP [--set KEY=VALUE ...] --connect EP``
+is what ``rsal run`` starts for each host group of a scenario: the host reads the same scenario
+file with the same overrides through :func:`agents.scenario.load_scenario` (no schema of its own)
+and runs the agents of application ``NAME`` whose host group is ``GROUP``
+(:meth:`agents.scenario.Application.groups`). ``rsal agent CLASS`` runs the same code for one
+agent, built from an :class:`~agents.scenario.AgentEntry` of its flags.
 
 Each agent is built as ``resolve(cls)(id, robot=robot, **kwargs)`` with the global ``arguments``
 its constructor accepts and its own ``args`` (:func:`agents.scenario.constructor_kwargs`). Agents
 that drive a robot (an async ``find_robot(fabric)``, like :class:`agents.classes.RobotAgent`) look
 for their devices concurrently, off the loop, so one slow robot does not hold up the others; then
-each is started on the host. Progress lines are ``[host NAME] ...`` on stdout. SIGTERM or SIGINT
-stops every agent (robots stopped, tokens ``agents/<id>`` withdrawn) and exits 0. An agent that
-cannot be built or started gives one line on stderr and exit 1 after the others are stopped, unless
-the spec tolerates failures; an agent whose body failed makes the exit code 1 too. When every agent
-has ended on its own the process exits (0, or 1 if one failed).
+each is started on the host. Progress lines are ``[host NAME] ...`` on stdout, every
+``--report-every`` seconds. SIGTERM or SIGINT stops every agent (robots stopped, tokens
+``agents/<id>`` withdrawn) and exits 0. An agent that cannot be built or started gives one line on
+stderr and exit 1 after the others are stopped, unless ``--tolerate-failures``; an agent whose
+body failed makes the exit code 1 too. When every agent has ended on its own the process exits
+(0, or 1 if one failed).
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
-import json
 import math
 import os
 import signal
 import sys
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
+from rsal.cliutil import positive
 from rsal.errors import RsalError
 from rsal.transport import TransportArgs, add_transport_args
 
-__all__ = ["AgentSpec", "HostError", "HostSpec", "build_agent", "load_spec", "main", "serve_agents"]
+from .scenario import AgentEntry, Scenario, ScenarioError, constructor_kwargs, load_scenario, parse_set
 
-_SPEC_KEYS = ("name", "agents", "arguments", "tolerate_failures", "report_every", "duration")
-_AGENT_KEYS = ("id", "cls", "robot", "args")
+__all__ = ["HostError", "build_agent", "host_agents", "main", "serve_agents"]
 
 
 class HostError(RsalError, ValueError):
-    """A spec or an agent that cannot be built; the message is one line."""
+    """A host group or an agent that cannot be built; the message is one line."""
 
 
-@dataclass(frozen=True)
-class AgentSpec:
-    id: str
-    cls: str
-    robot: str = ""
-    args: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class HostSpec:
-    name: str
-    agents: tuple[AgentSpec, ...]
-    arguments: dict[str, Any] = field(default_factory=dict)
-    tolerate_failures: bool = False
-    report_every: float = 5.0
-    duration: float | None = None
-
-    def to_json(self) -> str:
-        return json.dumps(
-            {
-                "name": self.name,
-                "agents": [{"id": a.id, "cls": a.cls, "robot": a.robot, "args": a.args} for a in self.agents],
-                "arguments": self.arguments,
-                "tolerate_failures": self.tolerate_failures,
-                "report_every": self.report_every,
-                "duration": self.duration,
-            }
+def host_agents(scenario: Scenario, app: str, host: str) -> list[AgentEntry]:
+    """The agents of application ``app`` that run in host group ``host``, in file order; raises
+    :class:`HostError` naming what the scenario has instead."""
+    application = scenario.applications.get(app)
+    if application is None:
+        known = ", ".join(scenario.applications)
+        raise HostError(f"{scenario.source}: no application {app!r}; use one of {known}")
+    groups = application.groups()
+    if host not in groups:
+        raise HostError(
+            f"{scenario.source}: application {app!r} has no host group {host!r}; its groups: {', '.join(groups)}"
         )
+    return groups[host]
 
 
-def load_spec(text: str, source: str = "spec") -> HostSpec:
-    """Parse and check a host spec (JSON); raises :class:`HostError` with one line."""
-    try:
-        d = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise HostError(f"{source}: not valid JSON: {e}") from None
-    if not isinstance(d, dict):
-        raise HostError(f"{source}: must be a JSON object with keys {', '.join(_SPEC_KEYS)}")
-    unknown = sorted(set(d) - set(_SPEC_KEYS))
-    if unknown:
-        raise HostError(f"{source}: unknown key(s) {', '.join(unknown)}; known: {', '.join(_SPEC_KEYS)}")
-    raw = d.get("agents")
-    if not isinstance(raw, list) or not raw:
-        raise HostError(f"{source}: 'agents' must be a non-empty list of {{id, cls, robot, args}}")
-    agents = []
-    for i, a in enumerate(raw):
-        if not isinstance(a, dict) or set(a) - set(_AGENT_KEYS) or not isinstance(a.get("id"), str):
-            raise HostError(f"{source}: agents[{i}] must be an object with 'id', 'cls' and optional 'robot', 'args'")
-        if not isinstance(a.get("cls"), str) or not isinstance(a.get("args", {}), dict):
-            raise HostError(f"{source}: agents[{i}] ({a['id']}): 'cls' must be a class name and 'args' an object")
-        agents.append(AgentSpec(a["id"], a["cls"], str(a.get("robot") or ""), dict(a.get("args") or {})))
-    arguments = d.get("arguments") or {}
-    if not isinstance(arguments, dict):
-        raise HostError(f"{source}: 'arguments' must be an object")
-    every = d.get("report_every", 5.0)
-    duration = d.get("duration")
-    if not isinstance(every, (int, float)) or not every > 0:
-        raise HostError(f"{source}: 'report_every' must be a positive number of seconds")
-    if duration is not None and (not isinstance(duration, (int, float)) or not duration > 0):
-        raise HostError(f"{source}: 'duration' must be a positive number of seconds or null")
-    return HostSpec(
-        str(d.get("name") or agents[0].id),
-        tuple(agents),
-        dict(arguments),
-        bool(d.get("tolerate_failures", False)),
-        float(every),
-        None if duration is None else float(duration),
-    )
-
-
-def build_agent(spec: AgentSpec, arguments: dict[str, Any] | None = None):
+def build_agent(entry: AgentEntry, arguments: dict[str, Any] | None = None):
     """``resolve(cls)(id, robot=..., **kwargs)``; an unknown class or a bad argument raises
     :class:`HostError` naming the agent."""
     from .registry import AgentClassError, resolve
-    from .scenario import constructor_kwargs
 
     try:
-        cls = resolve(spec.cls)
+        cls = resolve(entry.cls)
     except AgentClassError as e:
         raise HostError(str(e)) from None
-    kwargs = constructor_kwargs(cls, spec.robot, arguments or {}, spec.args)
+    kwargs = constructor_kwargs(cls, entry.robot, arguments or {}, entry.args)
     try:
-        return cls(spec.id, **kwargs)
+        return cls(entry.id, **kwargs)
     except (TypeError, ValueError) as e:
-        raise HostError(f"agent {spec.id} ({cls.__name__}): {e}") from None
+        raise HostError(f"agent {entry.id} ({cls.__name__}): {e}") from None
 
 
 def _starting_line(agent) -> str:
@@ -291,39 +232,46 @@ async def serve_agents(
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m agents.hostproc", description="Run the agents of a host spec.")
-    ap.add_argument("--spec", default="-", help="the host spec JSON file ('-' or omitted: stdin)")
-    ap.add_argument("--name", help="host name for progress lines (default: the spec's)")
+    ap = argparse.ArgumentParser(
+        prog="python -m agents.hostproc", description="Run the agents of one host group of a scenario application."
+    )
+    ap.add_argument("scenario", metavar="SCENARIO", help="the scenario file (YAML or TOML) rsal run was given")
+    ap.add_argument("--app", required=True, help="the application")
+    ap.add_argument("--host", required=True, help="the host group whose agents run here")
+    ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="a global argument override, as rsal run's")
+    ap.add_argument("--name", help="host name for progress lines (default: the host group)")
+    ap.add_argument("--report-every", type=positive, default=5.0, help="seconds between progress lines (default 5)")
+    ap.add_argument(
+        "--tolerate-failures", action="store_true", help="run the agents that could start when others cannot"
+    )
     ap.add_argument("-v", "--verbose", action="count", default=0, help="debug log output")
     add_transport_args(ap)
     args = ap.parse_args(argv)
     from rsal.cli import setup_logging
 
     setup_logging(args.verbose)
-    source = "stdin" if args.spec == "-" else args.spec
-    prog = "hostproc"
+    name = args.name or args.host
+    prog = f"host {name}"
 
     def fail(line: str) -> None:
         print(f"{prog}: {line}", file=sys.stderr, flush=True)
 
     try:
-        text = sys.stdin.read() if args.spec == "-" else Path(args.spec).read_text()
-        spec = load_spec(text, source)
-    except OSError as e:
-        fail(f"cannot read the spec {source!r}: {e.strerror}")
-        return 1
-    except HostError as e:
+        sc = load_scenario(args.scenario, parse_set(args.set or []))
+        entries = host_agents(sc, args.app, args.host)
+    except (ScenarioError, HostError) as e:
         fail(str(e))
         return 1
-    name = args.name or spec.name
-    prog = f"host {name}"
+    here = str(sc.source.parent.resolve())  # module:Class names next to the scenario, as rsal run
+    if here not in sys.path:
+        sys.path.insert(0, here)
     agents = []
-    for a in spec.agents:
+    for a in entries:
         try:
-            agents.append(build_agent(a, spec.arguments))
+            agents.append(build_agent(a, sc.arguments))
         except HostError as e:
             fail(str(e))
-            if not spec.tolerate_failures:
+            if not args.tolerate_failures:
                 return 1
     if not agents:
         return 1
@@ -334,9 +282,8 @@ def main(argv: list[str] | None = None) -> int:
                 TransportArgs.from_namespace(args),
                 tag=f"[host {name}]",
                 fail=fail,
-                report_every=spec.report_every,
-                duration=spec.duration,
-                tolerate_failures=spec.tolerate_failures,
+                report_every=args.report_every,
+                tolerate_failures=args.tolerate_failures,
             )
         )
     except ValueError as e:  # the session could not be opened

@@ -1,12 +1,15 @@
 """``rsal run SCENARIO --app NAME``: start an application of a scenario file and judge the run
 (thesis fig. 3.11: Jadex application files; the scenarios of 4.2).
 
-The runner starts, each as its own process (``start_new_session=True``, PIDs kept and printed):
+The runner starts, each as its own process under the one supervisor (:class:`rsal.procs.Child`: own
+session, PIDs kept and printed, output relayed):
 
 1. the simulator, ``rsal sim WORLD --listen EP`` (if the application has one), and waits until its
    ``sim:simulation:0`` device is alive;
 2. the device servers, ``rsal serve CONFIG --connect EP``;
-3. one agent host, ``python -m agents.hostproc``, per host group of agents (:mod:`agents.hostproc`).
+3. one agent host, ``python -m agents.hostproc SCENARIO --app NAME --host GROUP [--set ..]``, per host
+   group of agents (:mod:`agents.hostproc`): it reads the same scenario file with the same
+   overrides, so the scenario has one schema, :mod:`agents.scenario`.
 
 ``EP`` is a free loopback port unless ``--listen EP`` or ``--connect EP`` (join a running fabric)
 says otherwise. The runner's own Zenoh session subscribes ``svc/outcome/*`` and the agent tokens
@@ -19,6 +22,9 @@ child that exits unexpectedly (one line naming it and its last stderr line). A b
 argument exits 2 with one line; SIGINT/SIGTERM stop everything and exit 130. Stopping sends SIGTERM
 to the agent hosts, then the servers, then the simulator, each with a deadline, and SIGKILL by PID
 to whatever is left. The format and the lines printed are described in ``docs/scenarios.md``.
+
+(Somewhat over 500 lines: the runner's phases, end conditions and summary are one state machine
+over one event queue; the processes themselves are :mod:`rsal.procs`'s.)
 """
 
 from __future__ import annotations
@@ -28,9 +34,7 @@ import collections
 import os
 import queue
 import signal
-import subprocess
 import sys
-import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -39,7 +43,8 @@ from pathlib import Path
 from rsal.cliutil import positive
 from rsal.clock import ENV as clock_env
 from rsal.clock import SimClock
-from rsal.procs import die_with_parent
+from rsal.procs import Child, python_env, stop_all
+from rsal.transport import free_port
 
 from .scenario import Application, Scenario, ScenarioError, check_classes, load_scenario, parse_set
 
@@ -48,7 +53,6 @@ __all__ = ["register", "run_scenario"]
 PROG = "rsal run"
 SIM_NODE = "sim"  # the node of the simulator that rsal sim serves
 SIM_DEVICE = f"rsal/{SIM_NODE}/simulation/0"
-REPO_ROOT = Path(__file__).resolve().parent.parent
 #: seconds each kind of child gets to exit after SIGTERM before SIGKILL
 STOP_DEADLINES = {"host": 15.0, "server": 10.0, "sim": 10.0}
 
@@ -69,67 +73,6 @@ class _Out:
 
     def say(self, text: str) -> None:
         self.line(f"[run] {text}")
-
-
-class Child:
-    """One process of the run; its output lines are relayed with ``[name]`` in front."""
-
-    def __init__(self, name: str, kind: str, argv: list[str], env: dict, out: _Out):
-        self.name = name
-        self.kind = kind  # sim, server, host
-        self.argv = argv
-        self.out = out
-        self.last_err: collections.deque[str] = collections.deque(maxlen=5)
-        self.p = subprocess.Popen(
-            argv,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            env=env,
-            start_new_session=True,
-            text=True,
-            errors="replace",
-            **die_with_parent(),
-        )
-        self.reported = False
-        self._readers = [
-            threading.Thread(target=self._relay, args=(self.p.stdout, False), daemon=True),
-            threading.Thread(target=self._relay, args=(self.p.stderr, True), daemon=True),
-        ]
-        for t in self._readers:
-            t.start()
-
-    @property
-    def pid(self) -> int:
-        return self.p.pid
-
-    def _relay(self, pipe, is_err: bool) -> None:
-        for raw in pipe:
-            line = raw.rstrip("\n")
-            if not line:
-                continue
-            if is_err:
-                self.last_err.append(line)
-            self.out.line(line if line.startswith("[") else f"[{self.name}] {line}")
-        pipe.close()
-
-    def poll(self) -> int | None:
-        return self.p.poll()
-
-    def drained(self, timeout: float = 2.0) -> None:
-        """Wait (briefly) until its output is relayed, after it exited."""
-        for t in self._readers:
-            t.join(timeout)
-
-    def last_error(self) -> str:
-        return self.last_err[-1] if self.last_err else "(no error output)"
-
-    def signal(self, sig: int) -> None:
-        if self.p.poll() is None:
-            try:
-                os.kill(self.p.pid, sig)
-            except ProcessLookupError:
-                pass
 
 
 @dataclass
@@ -178,7 +121,7 @@ class Runner:
         elif getattr(args, "config", None) and not args.listen:
             self.endpoint, self.sim_flag = None, ""  # the config file says where the fabric is
         else:
-            self.endpoint = args.listen or f"tcp/127.0.0.1:{_free_port()}"
+            self.endpoint = args.listen or f"tcp/127.0.0.1:{free_port()}"
             self.sim_flag = "--listen"
 
     # ------------------------------------------------------------------ fabric
@@ -237,20 +180,11 @@ class Runner:
                 pass
 
     # ------------------------------------------------------------------ children
-    def _env(self) -> dict:
-        env = dict(os.environ)
-        paths = [str(self.sc.source.parent.resolve()), os.getcwd(), str(REPO_ROOT)]
-        if env.get("PYTHONPATH"):
-            paths.append(env["PYTHONPATH"])
-        env["PYTHONPATH"] = os.pathsep.join(dict.fromkeys(paths))
-        env["PYTHONUNBUFFERED"] = "1"
-        return env
-
     def _start(self, name: str, kind: str, argv: list[str], shown: str) -> Child:
-        env = self._env()
+        env = python_env(self.sc.source.parent.resolve())
         if kind == "host" and self.app.simulator is not None:
             env[clock_env] = SIM_NODE  # the agents follow the simulation's clock (rsal.clock)
-        c = Child(name, kind, argv, env, self.out)
+        c = Child(name, argv, kind=kind, shown=shown, env=env, forward=self.out.line, stderr_apart=True)
         self.children.append(c)
         self.out.say(f"started {name} (pid {c.pid}): {shown}")
         return c
@@ -270,24 +204,18 @@ class Runner:
         argv = [sys.executable, "-m", "rsal.cli", "sim", str(s.world), *flags]
         self._start("sim", "sim", argv, " ".join(["rsal sim", _rel(s.world), *flags]))
 
-    def _start_rest(self, tmp: Path) -> None:
+    def _start_rest(self) -> None:
         for i, cfg in enumerate(self.app.servers):
             name = "serve" if len(self.app.servers) == 1 else f"serve{i}"
             flags = self._member_flags()
             argv = [sys.executable, "-m", "rsal.cli", "serve", str(cfg), *flags]
             self._start(name, "server", argv, " ".join(["rsal serve", _rel(cfg), *flags]))
-        from .hostproc import AgentSpec, HostSpec
-
         for group, entries in self.app.groups().items():
-            spec = HostSpec(
-                group,
-                tuple(AgentSpec(a.id, a.cls, a.robot, a.args) for a in entries),
-                dict(self.sc.arguments),
-                report_every=self.args.host_report,
-            )
-            path = tmp / f"host-{group}.json"
-            path.write_text(spec.to_json())
-            argv = [sys.executable, "-m", "agents.hostproc", "--spec", str(path), "--name", group]
+            # the host reads the scenario this run parsed, with the same overrides (no second schema)
+            argv = [sys.executable, "-m", "agents.hostproc", str(self.sc.source.resolve()), "--app", self.app.name]
+            argv += ["--host", group, "--report-every", f"{self.args.host_report:g}"]
+            for item in self.args.set or []:
+                argv += ["--set", item]
             argv += self._member_flags()
             ids = ", ".join(a.id for a in entries)
             self._start(group, "host", argv, f"agent host with {len(entries)} agent(s): {ids}")
@@ -297,18 +225,15 @@ class Runner:
         return (["--connect", self.endpoint] if self.endpoint else []) + self.zenoh_flags
 
     def _stop_children(self) -> None:
+        """SIGTERM to the agent hosts, then the servers, then the simulator, each group with its
+        deadline, and SIGKILL by PID to whatever is left (:func:`rsal.procs.stop_all`)."""
+
+        def killed(c: Child, waited: float) -> None:
+            self.out.say(f"{c.name} (pid {c.pid}) did not stop within {waited:g} s; killed")
+
         for kind in ("host", "server", "sim"):
             group = [c for c in self.children if c.kind == kind and c.poll() is None]
-            for c in group:
-                c.signal(signal.SIGTERM)
-            deadline = time.monotonic() + STOP_DEADLINES[kind]
-            for c in group:
-                try:
-                    c.p.wait(max(0.0, deadline - time.monotonic()))
-                except subprocess.TimeoutExpired:
-                    self.out.say(f"{c.name} (pid {c.pid}) did not stop within {STOP_DEADLINES[kind]:g} s; killed")
-                    c.signal(signal.SIGKILL)
-                    c.p.wait(5)
+            stop_all(group, [(signal.SIGTERM, STOP_DEADLINES[kind])], killed)
         for c in self.children:
             c.drained()
 
@@ -386,7 +311,7 @@ class Runner:
                 continue
             what = {"sim": "the simulator", "server": "device server", "host": "agent host"}[c.kind]
             name = "" if c.kind == "sim" else f" {c.name!r}"
-            self.result = (False, f"{what}{name} (pid {c.pid}) exited with code {rc}: {c.last_error()}")
+            self.result = (False, f"{what}{name} (pid {c.pid}) {c.exit_reason()}")
             return
         t = self.tally
         if t.final is not None:
@@ -417,7 +342,7 @@ class Runner:
             self.result = (False, why)
 
     # ------------------------------------------------------------------ main
-    def _loop(self, t0: float, tmp: Path) -> None:
+    def _loop(self, t0: float) -> None:
         """Until the run is over or a signal came: events, phases, end checks, progress lines."""
         next_progress = t0 + self.progress
         while self.result is None and not self.signalled:
@@ -425,7 +350,7 @@ class Runner:
             now = self._now()
             if self.phase == "sim" and SIM_DEVICE in self.devices:
                 self.out.say(f"simulator up after {now - t0:.1f} s: {len(self.devices)} device(s)")
-                self._start_rest(tmp)
+                self._start_rest()
                 self.phase = "run"
             self._check(now, t0)
             if self.result is None and now >= next_progress:
@@ -448,25 +373,24 @@ class Runner:
         self.out.say(f"scenario {self.sc.name}, application {self.app.name}{desc}; fabric {where}")
         interrupted = ""
         try:
-            with tempfile.TemporaryDirectory(prefix="rsal-run-") as tmp:
-                try:
-                    self._open()
-                except ValueError as e:
-                    _err(str(e))
-                    return 1
-                if self.app.simulator is not None:
-                    self.phase = "sim"
-                    self._start_sim()
-                else:
-                    self._start_rest(Path(tmp))
-                    self.phase = "run"
-                self._loop(t0, Path(tmp))
-                if self.signalled:
-                    interrupted = self.signalled[0]
-                    self.out.say(f"{interrupted}: stopping")
-                elif not self.result[0]:
-                    _err(self.result[1])
-                self._stop_children()
+            try:
+                self._open()
+            except ValueError as e:
+                _err(str(e))
+                return 1
+            if self.app.simulator is not None:
+                self.phase = "sim"
+                self._start_sim()
+            else:
+                self._start_rest()
+                self.phase = "run"
+            self._loop(t0)
+            if self.signalled:
+                interrupted = self.signalled[0]
+                self.out.say(f"{interrupted}: stopping")
+            elif not self.result[0]:
+                _err(self.result[1])
+            self._stop_children()
         finally:
             self._stop_children()  # also after an unexpected error: no child outlives the run
             self._close()
@@ -493,14 +417,6 @@ class Runner:
             + (f"; times on the simulation's clock ({wall:.1f} s of wall time)" if self._sim_base is not None else "")
         )
         return code
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _rel(p: Path) -> str:

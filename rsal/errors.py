@@ -15,9 +15,9 @@ category, the class also derives from it, so ``except ValueError`` still works::
     ├── ScipError (ValueError)                  mrs_bridge.hw.scip: a malformed SCIP 2.0 frame
     ├── PlanError                               mrs_bridge.nav.wavefront: no plan (outside the map, ...)
     ├── ScenarioError (ValueError)              agents.scenario: a scenario file is wrong (file:line)
-    ├── HostError (ValueError)                  agents.hostproc: an agent host's description is wrong
+    ├── HostError (ValueError)                  agents.hostproc: a host group or an agent that cannot be built
     ├── AgentClassError (LookupError)           agents.registry: no such agent class
-    ├── ApiError (ValueError)                   agents.control: a bad request to the control center
+    ├── ApiError (ValueError)                   agents.control.api: a bad request to the control center
     └── _Failure                                agents.demo: the demo cannot go on (private)
 
     SimulatorError                              simulator.errors: a root of its own, see below

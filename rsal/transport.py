@@ -20,7 +20,15 @@ import zenoh
 
 from .errnet import ENDPOINT_FORM, zenoh_summary, zenoh_text
 
-__all__ = ["DEFAULT_ENDPOINT", "TransportArgs", "add_transport_args", "make_config", "open_session", "port_free"]
+__all__ = [
+    "DEFAULT_ENDPOINT",
+    "TransportArgs",
+    "add_transport_args",
+    "make_config",
+    "free_port",
+    "open_session",
+    "port_free",
+]
 
 DEFAULT_ENDPOINT = os.environ.get("RSAL_ENDPOINT", "tcp/127.0.0.1:7447")
 
@@ -68,6 +76,13 @@ def add_transport_args(p: argparse.ArgumentParser) -> None:
         metavar="KEY:VALUE",
         help="a Zenoh configuration entry, VALUE in JSON5, e.g. --cfg 'transport/shared_memory/enabled:false'",
     )
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that is free now (for a child or a fabric to listen on)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def port_free(endpoint: str) -> bool:

@@ -8,12 +8,14 @@ both peers; waits use ``wait_until`` or the protocol's own short deadlines.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 
 import pytest
 
 from agents.contractnet import CnpMessage, Initiator, Participant
 from agents.runtime import Agent
 from agents.services import Message, encode_message
+from rsal.clock import SimClock, set_clock
 from rsal.msgs import MessageError
 from tests.agents import test_runtime
 from tests.conftest import wait_until
@@ -111,6 +113,28 @@ def test_late_proposal_rejected_not_chosen(net):
     assert res.outcome == "done" and res.winner == "w1" and res.bids == {"w1": 3.0}
     wait_until(lambda: slow.cnp.outcomes.get(res.conversation) == "rejected", 5, "the late bidder rejected")
     assert res.late == ["slow"] and slow.performed == []
+
+
+def test_deadlines_count_seconds_of_the_process_clock(net):
+    """On the simulation's clock a call collects proposals for simulated seconds: while the
+    simulation is paused the call goes on however much wall time passes, and it ends once
+    simulated time passes the deadline."""
+    ws = [Worker("w1", 5.0), Worker("w2", 1.0)]
+    boss, lt = setup(net, ws)
+    sim = SimClock()
+    sim.feed(100.0, paused=True)
+    old = set_clock(sim)
+    try:
+        fut = asyncio.run_coroutine_threadsafe(boss.cnp.call({"x": 2.0}, deadline=DEADLINE), lt.loop)
+        calls = boss.cnp._calls
+        wait_until(lambda: any(len(c.result.bids) == 2 for c in list(calls.values())), 10, "both bids in")
+        with pytest.raises(concurrent.futures.TimeoutError):  # three deadlines of wall time: still open
+            fut.result(3 * DEADLINE)
+        sim.feed(100.0 + 2 * DEADLINE)  # simulated time passes the deadline
+        res = fut.result(10)
+    finally:
+        set_clock(old)
+    assert res.outcome == "done" and res.winner == "w2" and res.bids == {"w1": 3.0, "w2": 1.0}
 
 
 def test_concurrent_calls_do_not_mix(net):

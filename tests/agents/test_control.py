@@ -1,4 +1,4 @@
-"""``rsal control`` (agents/control.py, thesis 3.4.2 / 5.2.3): the JSON API without a browser.
+"""``rsal control`` (agents/control/, thesis 3.4.2 / 5.2.3): the JSON API without a browser.
 
 Unit tests cover the map image and the input checks of an in-process :class:`Control` without a
 fabric; the integration test starts a real ``rsal control`` process, starts the ``wander``
@@ -245,7 +245,7 @@ def test_robot_actions_check_their_inputs_before_touching_the_fabric():
 
 
 def test_argument_values_are_shown_as_yaml_that_set_reads_back():
-    from agents.control import _yaml_text
+    from agents.control.api import _yaml_text
     from agents.scenario import parse_set
 
     for v in (1.0, 60, "r0", True, [1, 2], {"a": 1}, "yes", 1e20, ""):

@@ -1,4 +1,4 @@
-"""``rsal control`` in a real headless browser (agents/control.py, thesis 3.4.2 / 5.2.3).
+"""``rsal control`` in a real headless browser (agents/control/, thesis 3.4.2 / 5.2.3).
 
 Debian's ``chromium``, driven by the ``playwright`` package (no browser download: the system's
 ``/usr/bin/chromium``, installed by ``./dev.sh test``'s set-up), opens the control page, starts the

@@ -6,8 +6,8 @@ by duration) or one the test writes into ``tmp_path`` with the :class:`tests.age
 Reporter` agent, which publishes outcomes. Checked: success and its summary, the end as soon as the
 count of distinct subjects is reached, a final verdict, a failing agent host (one line, exit 1),
 the timeout (exit 1), SIGINT (exit 130, every child PID gone), bad files (exit 2) and ``--connect`` to
-a running fabric. The agent-host process is also run on its own (tolerated failures, a bad spec on
-stdin). Waits are conditions with deadlines, never fixed sleeps.
+a running fabric. The agent-host process is also run on its own (tolerated failures, an unknown
+class or application in one line). Waits are conditions with deadlines, never fixed sleeps.
 """
 
 from __future__ import annotations
@@ -256,20 +256,21 @@ def test_rsal_agent_passes_arg_values_to_any_registered_class(procs):
     assert out.startswith("rsal agent: agent reporter (Reporter):") and "'subject'" in out
 
 
-def test_agent_host_process_tolerates_failures_when_its_spec_says_so(procs, tmp_path):
-    from agents.hostproc import AgentSpec, HostSpec
-
+def test_agent_host_process_tolerates_failures_when_told_so(procs, tmp_path):
     ep = f"tcp/127.0.0.1:{free_port()}"
-    spec = HostSpec(
-        "mixed",
-        (AgentSpec("rep", REPORTER, "", {"every": 0.2}), AgentSpec("wf9", "WallfollowAgent", "r9")),
-        {"startup_timeout": 1.0, "laser": False},
-        tolerate_failures=True,
-        report_every=1.0,
+    path = scenario(
+        tmp_path,
+        """
+        mixed:
+          agents:
+            - {type: rep, id: rep, host: mixed, args: {every: 0.2}}
+            - {type: wf, id: wf9, robot: r9, host: mixed}
+          end: {event: caught}
+        """,
     )
-    path = tmp_path / "spec.json"
-    path.write_text(spec.to_json())
-    host = procs([sys.executable, "-m", "agents.hostproc", "--spec", str(path), "--listen", ep])
+    argv = [sys.executable, "-m", "agents.hostproc", str(path), "--app", "mixed", "--host", "mixed"]
+    argv += ["--set", "startup_timeout=1.0", "--set", "laser=false", "--tolerate-failures", "--report-every", "1"]
+    host = procs([*argv, "--listen", ep])
     wait_until(lambda: "[host mixed] rep running" in host.output() or not host.alive(), 60, "rep running")
     out = host.output()
     assert host.alive(), out
@@ -281,18 +282,20 @@ def test_agent_host_process_tolerates_failures_when_its_spec_says_so(procs, tmp_
     assert "[host mixed] rep stopped (SIGTERM): sent" in out and "Traceback" not in out
 
 
-def test_agent_host_process_rejects_a_bad_spec_on_stdin():
-    p = subprocess.run(
-        [sys.executable, "-m", "agents.hostproc"],
-        input='{"agents": [{"id": "a", "cls": "Nope"}]}',
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=60,
+def test_agent_host_process_rejects_an_unknown_class_or_host_in_one_line(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text(
+        "scenario: bad\nagent_types: {x: Nope}\napplications: {one: {agents: [{type: x, id: a}], end: {event: e}}}\n"
     )
-    assert p.returncode == 1 and p.stdout == ""
-    lines = p.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("host a: unknown agent class 'Nope'; classes: "), p.stderr
+    for extra, start in (
+        ([], "host a: unknown agent class 'Nope'; classes: "),
+        (["--app", "two"], f"host a: {path}: no application 'two'; use one of one"),
+    ):
+        argv = [sys.executable, "-m", "agents.hostproc", str(path), "--app", "one", "--host", "a", *extra]
+        p = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=60)
+        assert p.returncode == 1 and p.stdout == ""
+        lines = p.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(start), p.stderr
 
 
 def test_connect_joins_a_running_fabric(procs, tmp_path):

@@ -13,9 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from agents.hostproc import AgentSpec, HostError, HostSpec, build_agent, load_spec
+from agents.hostproc import HostError, build_agent, host_agents
 from agents.scenario import (
     DEFAULT_TIMEOUT,
+    AgentEntry,
     ScenarioError,
     check_classes,
     constructor_kwargs,
@@ -218,27 +219,39 @@ def test_constructor_kwargs_filters_only_global_arguments():
     kw = constructor_kwargs(Reporter, "", glob, {"event": "x", "bogus": 1})
     assert kw == {"robot": "", "event": "x", "bogus": 1}  # entry args always passed ...
     with pytest.raises(HostError, match=r"agent rep \(Reporter\):.*bogus"):  # ... and rejected by the class
-        build_agent(AgentSpec("rep", "tests.agents.scenario_agents:Reporter", "", {"bogus": 1}), glob)
+        build_agent(AgentEntry("rep", "tests.agents.scenario_agents:Reporter", "rep", "", {"bogus": 1}), glob)
 
 
-def test_host_spec_round_trip_and_errors():
-    spec = HostSpec("h", (AgentSpec("a", "WallfollowAgent", "r0", {"period": 0.2}),), {"laser": False})
-    back = load_spec(spec.to_json())
-    assert back == spec
-    agent = build_agent(back.agents[0], back.arguments)
+HOSTS = """
+scenario: hosts
+arguments: {laser: false}
+agent_types: {wf: WallfollowAgent, rep: tests.agents.scenario_agents:Reporter}
+applications:
+  two:
+    agents:
+      - {type: wf, robot: r0, id: a, host: h, args: {period: 0.2}}
+      - {type: rep, id: b}
+      - {type: rep, id: c, host: h}
+    end: {event: x}
+"""
+
+
+def test_a_host_builds_its_agents_from_the_parsed_scenario(tmp_path):
+    sc = load_scenario(write(tmp_path, HOSTS))
+    entries = host_agents(sc, "two", "h")
+    assert entries == sc.applications["two"].groups()["h"]
+    assert [e.id for e in entries] == ["a", "c"] and [e.id for e in host_agents(sc, "two", "b")] == ["b"]
+    agent = build_agent(entries[0], sc.arguments)
     assert type(agent).__name__ == "WallfollowAgent" and agent.robot == "r0" and agent.laser is False
     assert agent.period == 0.2
-    for text, what in (
-        ("{", "not valid JSON"),
-        ('{"agents": []}', "non-empty list"),
-        ('{"agents": [{"id": "a"}], "bogus": 1}', "unknown key(s) bogus"),
-        ('{"agents": [{"id": "a", "cls": 3}]}', "'cls' must be a class name"),
-        ('{"agents": [{"id": "a", "cls": "X"}], "report_every": 0}', "'report_every' must be a positive"),
-    ):
-        with pytest.raises(HostError, match=what.replace("(", r"\(").replace(")", r"\)")):
-            load_spec(text)
+    over = load_scenario(write(tmp_path, HOSTS), parse_set(["laser=true"]))  # rsal run's --set, passed on
+    assert build_agent(host_agents(over, "two", "h")[0], over.arguments).laser is True
+    with pytest.raises(HostError, match=r"no application 'one'; use one of two"):
+        host_agents(sc, "one", "h")
+    with pytest.raises(HostError, match=r"application 'two' has no host group 'x'; its groups: h, b"):
+        host_agents(sc, "two", "x")
     with pytest.raises(HostError, match="unknown agent class 'Nope'"):
-        build_agent(AgentSpec("a", "Nope"))
+        build_agent(AgentEntry("a", "Nope", "a"))
 
 
 def test_the_demo_scenario_is_valid():

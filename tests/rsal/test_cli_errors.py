@@ -260,7 +260,7 @@ def test_demo_with_its_port_in_use(busy_port):
 def test_demo_with_a_silent_simulator(monkeypatch, capfd):
     """``rsal demo`` whose simulator announces itself but never answers (its child process replaced
     by the silent peer): the models request times out and the net turns it into one line."""
-    import agents.demo
+    import rsal.procs
     from rsal.cli import main
 
     real_popen = subprocess.Popen
@@ -272,7 +272,7 @@ def test_demo_with_a_silent_simulator(monkeypatch, capfd):
         started.append(p)
         return p
 
-    monkeypatch.setattr(agents.demo.subprocess, "Popen", fake_popen)
+    monkeypatch.setattr(rsal.procs.subprocess, "Popen", fake_popen)
     monkeypatch.setattr(threading, "excepthook", threading.excepthook)
     try:
         code = main(["demo", "--endpoint", nothing_at(), "--startup-timeout", "5"])

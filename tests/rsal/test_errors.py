@@ -58,7 +58,7 @@ def test_every_product_exception_is_an_rsal_error_drawn_in_the_tree(name):
         ("mrs_bridge.server.ServerError", RuntimeError),
         ("agents.scenario.ScenarioError", ValueError),
         ("agents.hostproc.HostError", ValueError),
-        ("agents.control.ApiError", ValueError),
+        ("agents.control.api.ApiError", ValueError),
         ("agents.registry.AgentClassError", LookupError),
     ],
 )
