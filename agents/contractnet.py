@@ -13,6 +13,14 @@ missing or mistyped field is dropped (``dropped`` counts them), a message of an 
 conversation is ignored, and a proposal that arrives after the deadline is answered with
 ``reject-proposal`` and never chosen.
 
+Receivers check what they can (``docs/security-receivers.md``): a participant accepts an award
+(``accept-proposal``) only from the agent whose ``cfp`` it proposed to in that conversation, so an
+award without a prior proposal, or from anyone else, is ignored; a participant given ``initiators``
+answers only the calls of those agents (a ``cfp`` from any other sender is ignored), so a forged
+call cannot commit it to a task. Each kind of ignored message is logged once per sender
+(``ignored`` counts them all). The task itself is the application's to check in ``bid`` (refuse
+what it does not know, e.g. a prey nobody has seen).
+
 Body fields (besides the envelope ``sender``, ``conversation``, ``time``):
 
 ``performative``  one of :data:`PERFORMATIVES`
@@ -307,7 +315,9 @@ class Participant:
     ``bid(task)`` returns a cost (lower is better), ``(cost, info)`` or ``None`` to refuse;
     ``perform(task)`` returns ``True`` when done, ``False`` (or raises) on failure. Both may be plain
     or ``async`` and default to the agent's own ``bid`` and ``perform`` methods. An accepted
-    proposal is honoured only within ``accept_grace`` seconds after the call's reply-by time.
+    proposal is honoured only within ``accept_grace`` seconds after the call's reply-by time, and
+    only from the agent the proposal went to. ``initiators`` -- agent ids, or a predicate on the
+    sender's id -- names whose calls are answered (default: everyone's); other calls are ignored.
     ``outcomes`` maps recent conversations to what became of them: ``refused``, ``proposed``,
     ``rejected``, ``done`` or ``failure``.
     """
@@ -320,8 +330,16 @@ class Participant:
         perform: Perform | None = None,
         service: str = CONTRACT_NET,
         accept_grace: float = 30.0,
+        initiators: Collection[str] | Callable[[str], bool] | None = None,
     ):
         self.agent = agent
+        if initiators is None or callable(initiators):
+            self._initiator_ok: Callable[[str], bool] | None = initiators
+        else:
+            allowed = frozenset(initiators)
+            self._initiator_ok = allowed.__contains__
+        self.ignored = 0  # calls from non-initiators and awards without a proposal of ours
+        self._reported: set[tuple[str, str]] = set()  # (what, sender) logged once
         self.service = check_name("service", service)
         self._bid = bid or agent.bid  # type: ignore[attr-defined]
         self._perform = perform or agent.perform  # type: ignore[attr-defined]
@@ -364,15 +382,28 @@ class Participant:
                 del self._pending[m.conversation]
                 self._note(m.conversation, "rejected")
         elif m.performative == ACCEPT:
-            p = self._pending.pop(m.conversation, None)
+            p = self._pending.get(m.conversation)
             if p is None or p[0] != m.sender:
-                if p is not None:
-                    self._pending[m.conversation] = p
+                why = "no proposal of mine" if p is None else f"my proposal went to {p[0]}"
+                self._ignore("award", m, f"an award ({why})")
                 return
+            del self._pending[m.conversation]
             await self._on_accept(m, p[1])
+
+    def _ignore(self, what: str, m: CnpMessage, text: str) -> None:
+        self.ignored += 1
+        if (what, m.sender) not in self._reported:
+            self._reported.add((what, m.sender))
+            log.warning(
+                "%s: ignored %s from %s in conversation %s on svc/%s (further ones from %s are not logged)",
+                self.agent.id, text, m.sender, m.conversation, self.service, m.sender,
+            )  # fmt: skip
 
     async def _on_cfp(self, m: CnpMessage) -> None:
         if m.participants and self.agent.id not in m.participants:
+            return
+        if self._initiator_ok is not None and not self._initiator_ok(m.sender):
+            self._ignore("cfp", m, "a call for proposals from a sender that is no initiator of mine")
             return
         if m.conversation in self._pending or m.conversation in self.outcomes:
             return  # a repeated cfp

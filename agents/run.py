@@ -13,7 +13,10 @@ session, PIDs kept and printed, output relayed):
 
 ``EP`` is a free loopback port unless ``--listen EP`` or ``--connect EP`` (join a running fabric)
 says otherwise. The runner's own Zenoh session subscribes ``svc/outcome/*`` and the agent tokens
-``agents/*``; it prints every outcome as it arrives and a progress line every few seconds, and relays
+``agents/*``; it counts outcomes only from the agents it launched (the application's agent ids): an
+outcome from any other sender -- on an open fabric anyone can put one -- is ignored, and each such
+sender is reported once (``docs/security-receivers.md``). It prints every outcome as it arrives and
+a progress line every few seconds, and relays
 its children's output with their name in front. The run ends with success (exit 0) when the end
 condition holds — ``count`` distinct subjects of ok ``event`` outcomes, or ``duration`` seconds
 (counted from the moment every agent is alive) without a failed outcome — or at once with the
@@ -98,6 +101,8 @@ class Runner:
         self.children: list[Child] = []
         self.tally = _Tally()
         self.expected = [a.id for a in app.agents]
+        self.own = frozenset(self.expected)  # the only senders whose outcomes count
+        self.strangers: set[str] = set()  # other senders of outcomes, reported once each
         self.alive: set[str] = set()
         self.ever_alive: set[str] = set()
         self.devices: set[str] = set()
@@ -252,6 +257,11 @@ class Runner:
 
     def _handle(self, item) -> None:
         kind, who, what = item
+        if kind == "outcome" and who not in self.own:
+            if who not in self.strangers:
+                self.strangers.add(who)
+                self.out.say(f"ignored an outcome from {who}, no agent of this application: {what.text!r}")
+            return
         if kind == "outcome":
             t = self.tally
             t.messages[what.event] += 1

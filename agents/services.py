@@ -8,6 +8,11 @@ receives the message, filtered on the subscriber side. Every message carries ``s
 body, as one msgpack map whose schema is defined here and validated on decode (STYLE rule 4): a
 malformed sample is dropped with a rate-limited warning and never reaches an agent.
 
+Receivers check what they can (``docs/security-receivers.md``): a message whose envelope ``sender``
+is not the sender chunk of its key (``svc/<service>/<sender>``) is a forgery on an open fabric -- an
+agent publishes only under its own id -- so it is dropped, counted in :attr:`Services.forged` (and in
+``dropped``) and reported by one rate-limited warning that names the key and the claimed sender.
+
 ``hello`` is the discovery service: every running agent answers queries on ``svc/hello/<agent_id>``
 with its id, class, robot and capabilities; :meth:`Services.who_is_there` collects the answers.
 
@@ -52,6 +57,7 @@ __all__ = [
     "check_name",
     "decode_message",
     "encode_message",
+    "SenderMismatch",
 ]
 
 log = logging.getLogger(__name__)
@@ -180,12 +186,22 @@ def encode_message(sender: str, body: Any, conversation: str, t: float) -> bytes
     return encode({"sender": sender, "conversation": conversation, "time": t, **d})
 
 
+class SenderMismatch(MessageError):
+    """The envelope's ``sender`` is not the key's sender chunk: a forged (or misrouted) message."""
+
+    def __init__(self, claimed: str, key_sender: str):
+        super().__init__(f"field 'sender' = {claimed!r} does not match the key's sender {key_sender!r}")
+        self.claimed = claimed
+        self.key_sender = key_sender
+
+
 def decode_message(service: str, key_sender: str, data: bytes) -> Message:
-    """Validate one sample of ``svc/<service>/<key_sender>``; raises :class:`MessageError`."""
+    """Validate one sample of ``svc/<service>/<key_sender>``; raises :class:`MessageError`
+    (:class:`SenderMismatch` when the envelope claims another sender than the key)."""
     m = decode_map(data)
     sender = get_str(m, "sender")
     if sender != key_sender:
-        raise MessageError(f"field 'sender' = {sender!r} does not match the key's sender {key_sender!r}")
+        raise SenderMismatch(sender, key_sender)
     conversation = get_str(m, "conversation")
     t = get_float(m, "time", lo=0.0)
     rest = {k: v for k, v in m.items() if k not in _ENVELOPE}
@@ -254,8 +270,7 @@ class Subscription:
         try:
             msg = decode_message(self.service, key.rsplit("/", 1)[-1], sample.payload.to_bytes())
         except MessageError as e:
-            self._services.dropped += 1
-            self._services.warn(f"bad:{key}", f"dropped a malformed message on {key}: {e}")
+            self._services.reject(key, e)
             return
         self._services.call_soon(self._deliver, msg)
 
@@ -287,11 +302,25 @@ class Services:
     def __init__(self, host: AgentHost):
         self.host = host
         self.session: zenoh.Session = host.session
-        self.dropped = 0
+        self.dropped = 0  # samples that never reached an agent (malformed or forged)
+        self.forged = 0  # of which: envelope sender != the key's sender chunk
         self._warn = _RateLimited()
 
     def warn(self, topic: str, text: str) -> None:
         self._warn.warn(topic, text)
+
+    def reject(self, key: str, e: MessageError) -> None:
+        """Count a sample on ``key`` that failed :func:`decode_message` and warn (rate-limited)."""
+        self.dropped += 1
+        if isinstance(e, SenderMismatch):
+            self.forged += 1
+            self.warn(
+                f"forged:{key}",
+                f"dropped a message on {key} that claims sender {e.claimed!r} (only {e.key_sender!r} "
+                f"publishes there): a forgery or a misconfigured peer",
+            )
+        else:
+            self.warn(f"bad:{key}", f"dropped a malformed message on {key}: {e}")
 
     def call_soon(self, fn: Callable, *args: Any) -> None:
         """Run ``fn(*args)`` on the host's loop (safe from any thread; ignored once the loop closed)."""
@@ -348,8 +377,7 @@ class Services:
             try:
                 msg = decode_message(HELLO, key.rsplit("/", 1)[-1], reply.ok.payload.to_bytes())
             except MessageError as e:
-                self.dropped += 1
-                self.warn(f"bad:{key}", f"dropped a malformed hello answer from {key}: {e}")
+                self.reject(key, e)
                 return
             self.call_soon(answers.append, msg.body)
 

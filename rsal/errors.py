@@ -7,7 +7,8 @@ category, the class also derives from it, so ``except ValueError`` still works::
     RsalError                                   anything the platform refuses or fails at, on purpose
     ├── MessageError (ValueError)               rsal.msgs: a payload does not match its schema
     │   ├── OutOfRange                          mrs_bridge.driver: well-formed but outside the device's range
-    │   └── Latched                             mrs_bridge.baseguard: the base's emergency stop is latched
+    │   ├── Latched                             mrs_bridge.baseguard: the base's emergency stop is latched
+    │   └── SenderMismatch                      agents.services: envelope sender is not the key's sender
     ├── RpcError                                rsal.msgs: a device answered with a typed error, or not at all
     ├── RobotError (ValueError)                 rsal.robot: a robot cannot be built from these devices
     ├── ConfigError (ValueError)                mrs_bridge.config: a driver configuration file is wrong

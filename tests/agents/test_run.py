@@ -320,3 +320,40 @@ def test_connect_joins_a_running_fabric(procs, tmp_path):
         sub.undeclare()
     finally:
         session.close()
+
+
+def test_a_forged_outcome_from_a_stranger_changes_nothing(procs, tmp_path):
+    """Issue 14's forgery replayed with a stock Zenoh client: a final, successful ``caught`` from a
+    peer that is no agent of the application does not end the run; the run ends by its own timeout,
+    and the stranger is reported once."""
+    import json
+
+    import zenoh
+
+    from agents.services import Outcome, encode_message
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    path = scenario(
+        tmp_path,
+        """
+        never:
+          agents:
+            - {type: rep, id: rep, args: {subjects: [same], every: 0.2}}
+          end: {event: caught, count: 2, timeout: 240}
+        """,
+    )
+    p = procs(rsal_cmd("run", str(path), "--listen", ep, "--timeout", "8"))
+    wait_until(lambda: "[run] agent rep is up" in p.output(), 60, "the runner's agent to be up")
+    c = zenoh.Config()
+    c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("connect/endpoints", json.dumps([ep]))
+    with zenoh.open(c) as intruder:
+        for i in range(3):
+            body = Outcome("caught", f"ghost{i}", f"prey ghost{i} caught", ok=True, final=(i == 0))
+            intruder.put("svc/outcome/intruder", encode_message("intruder", body, f"c{i}", 1.0))
+        out = finished(p, 120, "rsal run to end by its timeout")
+    assert p.p.returncode == 1, out
+    ignored = [line for line in out.splitlines() if "ignored an outcome from intruder" in line]
+    assert len(ignored) == 1, out
+    assert run_lines(out, "rsal run:") == ["rsal run: timeout after 8 s (caught 1/2, 1/1 agents up)"], out
+    assert "ghost" not in out.split("[run] result:")[1]

@@ -15,7 +15,9 @@ hunters (``ceil(hunters / prey)``), takes the nearest prey short of hunters for 
 and announces the other places one ``cfp`` at a time (task: the prey and where it is). A free hunter
 bids its straight-line distance to the prey, a busy one refuses, so the nearest free hunter wins
 ("nearest first"). The winner chases until the prey is caught, by anyone, and then answers
-``inform-done``; nobody chases a caught prey.
+``inform-done``; nobody chases a caught prey. A hunter answers only the auctioneer's calls and bids
+only for prey it knows (offered ``prey`` on ``hello`` and broadcast a position), so a forged call
+for an unknown prey (issue 14's "ghost") commits nobody (``docs/security-receivers.md``).
 """
 
 from __future__ import annotations
@@ -93,7 +95,9 @@ class FollowAgent(NavAgent):
         self.subscribe(SendPosition.SERVICE, self._on_position)
         self.subscribe(Outcome.SERVICE, self._on_caught, filter=match(event="caught"))
         if self.allocation == "contract_net":
-            self._cnp = Participant(self, bid=self._bid, perform=self._perform, service=HUNT_SERVICE)
+            self._cnp = Participant(
+                self, bid=self._bid, perform=self._perform, service=HUNT_SERVICE, initiators=self._is_auctioneer
+            )
             self._initiator = Initiator(self, service=HUNT_SERVICE)
             self._allocation_task = self.host.spawn(self._allocation_loop(), f"{self.id}: allocation")
 
@@ -123,10 +127,17 @@ class FollowAgent(NavAgent):
         self.host.spawn(self.stop_robot(), f"{self.id}: stop")
 
     # ------------------------------------------------------------------ contract net
+    def _is_auctioneer(self, sender: str) -> bool:
+        """Whose calls this hunter answers: the lowest-id hunter seen on ``hello``."""
+        return bool(self.hunters) and sender == self.hunters[0]
+
+    def _known_prey(self, prey) -> bool:
+        return isinstance(prey, str) and prey in self.prey_robots and prey in self.positions
+
     def _bid(self, task: dict):
         prey = task.get("prey")
-        if self.prey or not isinstance(prey, str) or prey in self.caught:
-            return None  # busy, or nothing to chase
+        if self.prey or not self._known_prey(prey) or prey in self.caught:
+            return None  # busy, an unknown prey (a forged call), or nothing to chase
         me = self.nav.position if self.nav is not None else None
         if me is None:
             return None
@@ -134,8 +145,8 @@ class FollowAgent(NavAgent):
 
     async def _perform(self, task: dict) -> bool:
         """Take on the prey (done at once: the chase itself ends with the prey's ``caught``)."""
-        prey = task["prey"]
-        if self.prey or prey in self.caught:
+        prey = task.get("prey")
+        if self.prey or not self._known_prey(prey) or prey in self.caught:
             return False
         self._chase(prey)
         return True
