@@ -1,7 +1,7 @@
 """The ``rsal`` command line.
 
-``rsal`` itself knows the commands of the RSAL layer (``ls``, ``goto``, ``estop``, ``router``, ``watch``); the other
-layers add theirs through the ``rsal.commands`` entry-point group (``serve`` and ``sim`` from
+``rsal`` itself knows the commands of the RSAL layer (``ls``, ``goto``, ``estop``, ``router``, ``secure``,
+``watch``); the other layers add theirs through the ``rsal.commands`` entry-point group (``serve`` and ``sim`` from
 ``mrs_bridge``, ``demo`` from ``agents``), so this package never imports the layers above or beside
 it. Each entry point is a function ``register(subparsers)`` that adds a sub-command whose
 ``func(args) -> int`` runs it.
@@ -257,6 +257,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .router import register as register_router
 
     register_router(sub)
+    from .secure import register as register_secure
+
+    register_secure(sub)
     from .watch import register as register_watch
 
     register_watch(sub)

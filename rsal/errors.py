@@ -19,6 +19,7 @@ category, the class also derives from it, so ``except ValueError`` still works::
     ├── HostError (ValueError)                  agents.hostproc: a host group or an agent that cannot be built
     ├── AgentClassError (LookupError)           agents.registry: no such agent class
     ├── ApiError (ValueError)                   agents.control.api: a bad request to the control center
+    ├── SecureError (ValueError)                rsal.secure: a fleet folder or identity that cannot be made
     └── _Failure                                agents.demo: the demo cannot go on (private)
 
     SimulatorError                              simulator.errors: a root of its own, see below
