@@ -1,0 +1,246 @@
+"""Identities and least privilege by key space (``rsal secure``, docs/security.md).
+
+A fleet folder made in a temporary folder: robot hosts ``r1`` and ``r2``, agent host ``hostA``
+(agent ``hunter-1``, driving ``r1``), an operator and a viewer; ``rsal router`` runs with the
+generated rules and is killed by PID. Every refusal has its positive twin sent through the same
+router at the same time: the forged message never arrives while the genuine one does, so the wait
+for the genuine one is the deadline for the forged one (no fixed sleep).
+
+- robot host r1 cannot drive r2, cannot declare r2's tokens, cannot publish r2's laser, cannot
+  answer r2's rpc; it serves and drives its own;
+- agent host A publishes and announces only its own agent;
+- the viewer reads data and tokens but cannot put a command;
+- a revoked identity cannot connect; a current one can.
+
+Plus the folder itself: adding a robot leaves the other members' files untouched, errors are one
+line. Skipped with the reason when openssl is missing.
+"""
+
+from __future__ import annotations
+
+import shutil
+import threading
+
+import pytest
+import zenoh
+
+from rsal.secure import Fleet, Identity, SecureError
+from rsal.transport import TransportArgs, open_session
+from tests.conftest import Proc, free_port, rsal_cmd, wait_until
+
+pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is needed to make certificates")
+
+MEMBERS = ("r1", "r2", "hostA", "op", "view")
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    """The fleet folder, the router and one open session per member; yields (Fleet, sessions, revoked config)."""
+    f = Fleet(tmp_path_factory.mktemp("fleet") / "fleet")
+    f.init("127.0.0.1", free_port())
+    f.add(Identity("r1", "robot"))
+    f.add(Identity("r2", "robot"))
+    f.add(Identity("hostA", "agents", agents=["hunter-1"], services=["send_position"], robots=["r1"]))
+    f.add(Identity("op", "operator"))
+    f.add(Identity("view", "viewer"))
+    gone = f.add(Identity("gone", "robot")).read_text()
+    f.revoke("gone")
+    router = Proc(rsal_cmd("router", "--config", str(f.dir / "router.json5")))
+    sessions = {}
+    try:
+        wait_until(lambda: "routing on" in router.output(), 30, "the router to listen")
+        for name in MEMBERS:
+            sessions[name] = open_session(TransportArgs(config=str(f.member_config(name))))
+        yield f, sessions, gone
+    finally:
+        for s in sessions.values():
+            s.close()
+        router.close()
+
+
+class Inbox:
+    """The payloads a subscriber receives."""
+
+    def __init__(self, session, keyexpr: str):
+        self.lock = threading.Lock()
+        self.got: list[tuple[str, bytes]] = []
+        self.sub = session.declare_subscriber(keyexpr, self._on)
+
+    def _on(self, sample) -> None:
+        with self.lock:
+            self.got.append((str(sample.key_expr), sample.payload.to_bytes()))
+
+    def count(self, payload: bytes) -> int:
+        with self.lock:
+            return sum(1 for _, p in self.got if p == payload)
+
+
+def forged_never_arrives(inbox: Inbox, forger, key: str, genuine, gkey: str, what: str) -> None:
+    """Put a forged and a genuine message in turns until 5 genuine ones arrived; no forged one may."""
+
+    def five_genuine() -> bool:
+        forger.put(key, b"forged")
+        genuine.put(gkey, b"genuine")
+        return inbox.count(b"genuine") >= 5
+
+    wait_until(five_genuine, 30, f"the genuine messages ({what})", interval=0.05)
+    assert inbox.count(b"forged") == 0, f"{what}: a forged message arrived"
+
+
+def _tokens(session, keyexpr: str) -> list[str]:
+    return sorted(str(r.ok.key_expr) for r in session.liveliness().get(keyexpr, timeout=5.0) if r.ok)
+
+
+def test_a_robot_host_cannot_drive_another_robot_but_the_operator_and_its_agents_can(fleet):
+    _, s, _ = fleet
+    r2_cmd = Inbox(s["r2"], "rsal/r2/position2d/0/cmd")
+    forged_never_arrives(r2_cmd, s["r1"], "rsal/r2/position2d/0/cmd", s["op"], "rsal/r2/position2d/0/cmd", "r1->r2")
+    r1_cmd = Inbox(s["r1"], "rsal/r1/position2d/0/cmd")
+    # the agent host drives the robot it was given (r1), not r2
+    forged_never_arrives(r2_cmd, s["hostA"], "rsal/r2/position2d/0/cmd", s["op"], "rsal/r2/position2d/0/cmd", "A->r2")
+    forged_never_arrives(r1_cmd, s["r2"], "rsal/r1/position2d/0/cmd", s["hostA"], "rsal/r1/position2d/0/cmd", "A->r1")
+
+
+def test_a_robot_host_cannot_publish_another_robots_laser(fleet):
+    _, s, _ = fleet
+    seen = Inbox(s["view"], "rsal/*/laser/0/data")
+    forged_never_arrives(seen, s["r1"], "rsal/r2/laser/0/data", s["r2"], "rsal/r2/laser/0/data", "r1 as r2's laser")
+    n = seen.count(b"genuine")
+    wait_until(
+        lambda: (s["r1"].put("rsal/r1/laser/0/data", b"genuine"), seen.count(b"genuine") > n)[1], 10, "r1's own laser"
+    )
+
+
+def test_a_robot_host_announces_and_answers_only_its_own_devices(fleet):
+    _, s, _ = fleet
+    forged = s["r1"].liveliness().declare_token("rsal/r2/laser/0")  # declared first: it would be seen first
+    own = s["r1"].liveliness().declare_token("rsal/r1/laser/0")
+    rogue = s["r1"].declare_queryable("rsal/r2/position2d/0/rpc/describe", lambda q: q.reply(q.key_expr, b"rogue"))
+    real = s["r2"].declare_queryable("rsal/r2/position2d/0/rpc/describe", lambda q: q.reply(q.key_expr, b"r2"))
+    try:
+        seen = wait_until(lambda: _tokens(s["op"], "rsal/**") or None, 20, "r1's own token at the operator")
+        assert seen == ["rsal/r1/laser/0"], f"tokens seen by the operator: {seen}"
+        assert _tokens(s["view"], "rsal/**") == ["rsal/r1/laser/0"]
+        for _ in range(5):
+            answers = [
+                r.ok.payload.to_bytes() for r in s["op"].get("rsal/r2/position2d/0/rpc/describe", timeout=3) if r.ok
+            ]
+            assert answers == [b"r2"], f"r2's describe answered by {answers}"
+    finally:
+        for x in (forged, own, rogue, real):
+            x.undeclare()
+
+
+def test_an_agent_host_speaks_and_lives_only_as_its_own_agents(fleet):
+    _, s, _ = fleet
+    inbox = Inbox(s["op"], "svc/send_position/*")
+    genuine_key, forged_key = "svc/send_position/hunter-1", "svc/send_position/hunter-2"
+    forged_never_arrives(inbox, s["hostA"], forged_key, s["hostA"], genuine_key, "A as hunter-2")
+    assert {k for k, p in inbox.got if p == b"genuine"} == {genuine_key}
+    forged = s["hostA"].liveliness().declare_token("agents/hunter-2")
+    own = s["hostA"].liveliness().declare_token("agents/hunter-1")
+    try:
+        seen = wait_until(lambda: _tokens(s["op"], "agents/**") or None, 20, "hunter-1's token at the operator")
+        assert seen == ["agents/hunter-1"]
+    finally:
+        forged.undeclare()
+        own.undeclare()
+
+
+def test_the_viewer_reads_but_cannot_command(fleet):
+    _, s, _ = fleet
+    r1_cmd = Inbox(s["r1"], "rsal/r1/position2d/0/cmd")
+    forged_never_arrives(r1_cmd, s["view"], "rsal/r1/position2d/0/cmd", s["op"], "rsal/r1/position2d/0/cmd", "viewer")
+    # nor does it read commands or services: the operator's command above reached r1, not the viewer
+    watch = Inbox(s["view"], "rsal/r1/position2d/0/cmd")
+    data = Inbox(s["view"], "rsal/r1/position2d/0/data")
+
+    def both_sent() -> bool:
+        s["op"].put("rsal/r1/position2d/0/cmd", b"genuine")
+        s["r1"].put("rsal/r1/position2d/0/data", b"genuine")
+        return data.count(b"genuine") >= 5 and r1_cmd.count(b"genuine") >= 10
+
+    wait_until(both_sent, 30, "r1's data at the viewer", interval=0.05)
+    assert watch.got == [], "the viewer received a velocity command"
+
+
+def _strict(path_text: str, tmp_path) -> zenoh.Config:
+    """A member's config that gives up at once instead of retrying forever."""
+    p = tmp_path / "member.json5"
+    p.write_text(path_text)
+    c = zenoh.Config.from_file(str(p))
+    c.insert_json5("connect/timeout_ms", "3000")
+    c.insert_json5("connect/exit_on_failure", "true")
+    return c
+
+
+def test_a_revoked_identity_cannot_connect_and_a_current_one_can(fleet, tmp_path):
+    f, _, gone = fleet
+    with pytest.raises(zenoh.ZError):
+        zenoh.open(_strict(gone, tmp_path)).close()
+        pytest.fail("a revoked identity could connect")
+    zenoh.open(_strict(f.member_config("r2").read_text(), tmp_path)).close()
+
+
+def test_adding_a_robot_touches_no_other_member(tmp_path):
+    f = Fleet(tmp_path / "fleet")
+    f.init("127.0.0.1", 7448)
+    f.add(Identity("r1", "robot"))
+    f.add(Identity("op", "operator"))
+    before = {n: f.member_config(n).read_bytes() for n in ("r1", "op")}
+    pw = f.passwords()
+    rules = (f.dir / "router.json5").read_text()
+    f.add(Identity("r3", "robot", nodes=["r3", "sim"]))
+    assert {n: f.member_config(n).read_bytes() for n in ("r1", "op")} == before
+    assert {k: v for k, v in f.passwords().items() if k != "r3"} == pw and "r3" in f.passwords()
+    after = (f.dir / "router.json5").read_text()
+    assert after != rules and "rsal/r3/**" in after and "rsal/sim/**" in after
+    assert oct(f.member_config("r3").stat().st_mode & 0o777) == "0o600"
+    f.revoke("r3")
+    assert "r3" not in f.passwords() and not f.member_config("r3").exists()
+    assert (f.dir / "router.json5").read_text() == rules
+
+
+@pytest.mark.parametrize(
+    "argv, says",
+    [
+        (["add-robot", "r/1"], "rsal secure: identity 'r/1' must start with a letter or digit"),
+        (["add-robot", "r1", "--nodes", "r1,*"], "rsal secure: node '*' must start with a letter or digit"),
+        (["add-agents", "hostA", "--agents", "", "--services", "s"], "rsal secure: agent host 'hostA': name its"),
+        (["revoke", "nobody"], "rsal secure: no identity 'nobody'"),
+        (["add-robot", "r1", "--dir", "missing"], "no fleet folder here (make one with: rsal secure init --dir"),
+    ],
+)
+def test_user_errors_are_one_line(tmp_path, argv, says):
+    import subprocess
+    import sys
+
+    Fleet(tmp_path / "fleet").init("127.0.0.1", 7448)
+    folder = [] if "--dir" in argv else ["--dir", str(tmp_path / "fleet")]
+    r = subprocess.run(
+        [sys.executable, "-m", "rsal.cli", "secure", *argv, *folder],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert says in r.stderr, r.stderr
+
+
+def test_name_errors_name_the_value(tmp_path):
+    f = Fleet(tmp_path / "fleet")
+    f.init("127.0.0.1", 7448)
+    with pytest.raises(SecureError, match="identity 'r/1'"):
+        f.add(Identity("r/1", "robot"))
+    with pytest.raises(SecureError, match="node '\\*'"):
+        f.add(Identity("r1", "robot", nodes=["r1", "*"]))
+    with pytest.raises(SecureError, match="name its agents and services"):
+        f.add(Identity("hostA", "agents", agents=["a"]))
+    f.add(Identity("r1", "robot"))
+    with pytest.raises(SecureError, match="exists already"):
+        f.add(Identity("r1", "robot"))
+    with pytest.raises(SecureError, match="no identity 'r9'.*known: r1"):
+        f.revoke("r9")
+    with pytest.raises(SecureError, match="already here"):
+        f.init("127.0.0.1", 7448)
