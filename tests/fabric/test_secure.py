@@ -1,10 +1,13 @@
-"""The secured profile (deploy/secure/make-profile.sh): TLS to ``rsal router``, a password per role
-and access-control rules on the router. With ``rsal sim`` joined as a fleet member:
+"""The secured profile (deploy/secure/make-profile.sh, a wrapper of ``rsal secure``): TLS to
+``rsal router``, a password per identity and access-control rules on the router. With ``rsal sim``
+joined as the robot host ``simhost`` (nodes ``sim`` and ``r0``), the operator ``fleet`` and the
+viewer ``viewer`` the script makes:
 
 - a peer without credentials, with a wrong password or without TLS cannot connect;
-- an authenticated viewer sees the robots (tokens, odometry) but cannot drive one: its velocity
-  commands have no effect while odometry keeps arriving, and its rpc gets no reply;
-- a fleet member works as before: rpc answered, the same command moves the robot.
+- an authenticated viewer sees the robots (tokens, odometry, ``describe``) but cannot drive one: its
+  velocity commands have no effect while odometry keeps arriving, and its ``set_velocity`` rpc gets
+  no reply;
+- the operator works as before: rpc answered, the same command moves the robot.
 
 Skipped with the reason when openssl is missing. Every wait has a deadline.
 """
@@ -51,8 +54,11 @@ def secured(tmp_path_factory):
     out = tmp_path_factory.mktemp("profile")
     port = free_port()
     subprocess.run([str(SCRIPT), str(out), "127.0.0.1", str(port)], check=True, capture_output=True, timeout=60)
+    subprocess.run(
+        rsal_cmd("secure", "add-robot", "simhost", "--nodes", "sim,r0", "--dir", str(out)), check=True, timeout=60
+    )
     router = Proc(rsal_cmd("router", "--config", str(out / "router.json5")))
-    sim = Proc(rsal_cmd("sim", str(MAPS / "testroom.world"), "--config", str(out / "fleet.json5")))
+    sim = Proc(rsal_cmd("sim", str(MAPS / "testroom.world"), "--config", str(out / "members" / "simhost.json5")))
     try:
         yield out, port, router, sim
     finally:
@@ -106,8 +112,8 @@ def test_without_credentials_or_tls_nobody_connects(secured):
 
 def test_a_viewer_watches_but_cannot_drive_and_the_fleet_can(secured):
     out, _, router, sim = secured
-    viewer = open_session(TransportArgs(config=str(out / "viewer.json5")))
-    fleet = open_session(TransportArgs(config=str(out / "fleet.json5")))
+    viewer = open_session(TransportArgs(config=str(out / "members" / "viewer.json5")))
+    fleet = open_session(TransportArgs(config=str(out / "members" / "fleet.json5")))
     try:
         seen = Odometry(viewer)
         wait_until(lambda: seen.count >= 3, 60, "the viewer to receive r0's odometry through the router")
@@ -125,8 +131,9 @@ def test_a_viewer_watches_but_cannot_drive_and_the_fleet_can(secured):
         assert seen.count >= n0 + 20
         assert _travel(start, seen.last) < 1e-3, "a viewer's command moved the robot"
 
-        replies = list(viewer.get(rpc_key(BASE, "describe"), timeout=2.0))
+        replies = list(viewer.get(rpc_key(BASE, "set_velocity"), payload=turn, timeout=2.0))
         assert [r for r in replies if r.ok] == [], "a viewer's rpc was answered"
+        assert [r for r in viewer.get(rpc_key(BASE, "describe"), timeout=5.0) if r.ok], "a viewer cannot describe"
 
         # The fleet's rpc is answered and the same command moves the robot.
         answered = [r for r in fleet.get(rpc_key(BASE, "describe"), timeout=5.0) if r.ok]
@@ -149,8 +156,8 @@ def test_a_viewer_may_press_the_emergency_stop_and_only_the_fleet_releases_it(se
     from rsal.estop import estop
 
     out, _, router, sim = secured
-    viewer = open_session(TransportArgs(config=str(out / "viewer.json5")))
-    fleet = open_session(TransportArgs(config=str(out / "fleet.json5")))
+    viewer = open_session(TransportArgs(config=str(out / "members" / "viewer.json5")))
+    fleet = open_session(TransportArgs(config=str(out / "members" / "fleet.json5")))
     try:
         seen = Odometry(viewer)
         wait_until(lambda: seen.count >= 3, 60, "the viewer to receive r0's odometry through the router")
