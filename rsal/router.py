@@ -3,9 +3,9 @@
 On one machine or one LAN the fleet's processes are peers and need no router (see the README's
 Zenoh profiles). Across sites, members run as clients (``--mode client --connect`` or a
 ``--config`` file) of a router per site, and routers connect to each other; with the secured
-profile (``deploy/secure/make-profile.sh``) the router is where TLS ends, where every member
-proves who it is (user/password) and where the access-control rules decide who may drive a robot
-and who may only watch. This is Zenoh's own router (a session in ``router`` mode) with the
+profile (``rsal secure``, docs/security.md) the router is where TLS ends, where every member
+proves who it is (its own user/password) and where the generated access-control rules give each
+identity only its own keys. This is Zenoh's own router (a session in ``router`` mode) with the
 ``rsal`` transport flags, progress lines and a clean stop on SIGTERM/SIGINT.
 """
 
