@@ -244,3 +244,37 @@ def test_name_errors_name_the_value(tmp_path):
         f.revoke("r9")
     with pytest.raises(SecureError, match="already here"):
         f.init("127.0.0.1", 7448)
+
+
+def test_without_openssl_init_says_so(tmp_path, monkeypatch):
+    monkeypatch.setattr("rsal.secure.shutil.which", lambda name: None)
+    with pytest.raises(SecureError, match="openssl is needed"):
+        Fleet(tmp_path / "fleet").init("127.0.0.1", 7448)
+    assert not (tmp_path / "fleet").exists()
+
+
+def test_the_command_line_makes_and_lists_identities(tmp_path):
+    import subprocess
+    import sys
+
+    def rsal(*argv: str) -> str:
+        r = subprocess.run(
+            [sys.executable, "-m", "rsal.cli", "secure", *argv, "--dir", str(tmp_path / "f")],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert r.returncode == 0, r.stderr
+        return r.stdout
+
+    rsal("init", "--port", "7448")
+    assert "members/r1.json5" in rsal("add-robot", "r1")
+    rsal(
+        "add-agents", "hostA", "--agents", "hunter-1,hunter-2", "--services", "send_position,outcome", "--robots", "r1"
+    )
+    rsal("add-viewer", "wall")
+    assert "restart the router" in rsal("revoke", "wall")
+    assert rsal("list").splitlines() == [
+        "r1\trobot\tnodes=r1",
+        "hostA\tagents\tagents=hunter-1,hunter-2 services=send_position,outcome robots=r1",
+    ]
