@@ -17,12 +17,11 @@ meaning, no code shared):
 
 from __future__ import annotations
 
-import difflib
 import math
 from pathlib import Path
 
 from ..controllers import CONTROLLERS
-from ..errors import WorldFileError
+from ..errors import WorldFileError, did_you_mean
 from ..spec import FloorplanSpec, ModelSpec, WorldSpec, parse_color
 from .devices import DeviceMapping
 from .keywords import (
@@ -129,8 +128,8 @@ class Mapper(DeviceMapping):
         wp = self.world_props
         for key, p in wp.items():
             if base_key(key) not in WORLD_KEYS and not key.startswith("gui_"):
-                close = difflib.get_close_matches(base_key(key), sorted(WORLD_KEYS), n=1, cutoff=0.6)
-                hint = f"; did you mean '{close[0]}'?" if close else ""
+                hint = did_you_mean(base_key(key), sorted(WORLD_KEYS))
+                hint = f"; {hint}" if hint else ""
                 self.warn(p.tok, f"unknown world keyword '{key}' ignored{hint}", key=("key", p.tok.file, key))
         if (p := wp.get("interval_sim")) is not None:
             v = num(p, "a positive number of milliseconds", "interval_sim 100")

@@ -10,13 +10,12 @@ The device and model sections (:mod:`~simulator.yamlworld.devices`,
 
 from __future__ import annotations
 
-import difflib
 import logging
 import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..errors import WorldFileError
+from ..errors import WorldFileError, did_you_mean
 from ..spec import parse_color
 from .reader import LineMap, LineSeq
 
@@ -61,8 +60,8 @@ class Values:
                 continue
             if not isinstance(key, str):
                 raise self.error(m.line_of(key), f"{where}: key {key!r} must be a name such as '{known[0]}'")
-            close = difflib.get_close_matches(key, list(known), n=1, cutoff=0.6)
-            hint = f"did you mean '{close[0]}'? " if close else ""
+            hint = did_you_mean(key, known)
+            hint = f"{hint} " if hint else ""
             self.warn(m.line_of(key), f"unknown key '{key}' in {where} ignored; {hint}known: {', '.join(known)}")
 
     def mapping(self, v: object, line: int, where: str, example: str) -> LineMap:
@@ -174,8 +173,8 @@ class Values:
         v = m[key]
         if isinstance(v, str) and v in options:
             return v
-        close = difflib.get_close_matches(str(v), list(options), n=1, cutoff=0.6) if isinstance(v, str) else []
-        hint = f"did you mean '{close[0]}'? " if close else ""
+        hint = did_you_mean(v, options) if isinstance(v, str) else ""
+        hint = f"{hint} " if hint else ""
         raise self.error(
             m.line_of(key), f"{where}.{key} {short(v)} is not known; {hint}use one of {', '.join(options)}"
         )
