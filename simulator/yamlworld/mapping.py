@@ -11,16 +11,15 @@ a bitmap (``size`` + centre ``pose``).
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
-from ..errors import WorldFileError
+from ..gridmap import image_size
 from ..presets import OBJECT_PRESETS, ROBOT_PRESETS
 from ..spec import BlobfinderSpec, BumperSpec, FiducialSpec, FloorplanSpec, ModelSpec, RangerSpec, WorldSpec
 from .devices import DeviceSections
 from .reader import LineMap
 from .values import short
 
-__all__ = ["DEFAULT_RESOLUTION", "Mapper", "image_size"]
+__all__ = ["DEFAULT_RESOLUTION", "Mapper"]
 
 TOP_KEYS = ("world", "floorplan", "robots", "objects")
 WORLD_KEYS = ("interval_sim", "speedup", "seed", "name")
@@ -105,7 +104,7 @@ class Mapper(DeviceSections):
                 line,
                 f"floorplan.bitmap '{rel}' not found (looked for {path}); the path is relative to this file",
             )
-        w, h = image_size(path, rel, self.file, line)
+        w, h = image_size(path, f"floorplan.bitmap '{rel}'", self.file, line)
         name = self.text(m, "name", where, "floorplan")
         threshold = self.num(m, "threshold", where, 0.5, positive=True)
         if threshold >= 1:
@@ -164,20 +163,10 @@ class Mapper(DeviceSections):
         if not self.flag(m, "sonar", where, True):
             spec.rangers = [r for r in spec.rangers if r.kind != "sonar"]
         self._common(m, where, spec)
-        for key in ("max_speed", "max_accel"):
+        for key in ("max_speed", "max_accel", "odom_error", "odom_noise"):
             if key in m:
-                example = f"{key}: [1.0, 100]   # m/s (m/s^2), deg/s (deg/s^2)"
-                v = self.numbers(m, key, where, (2,), example)
-                if min(v) < 0:
-                    raise self.error(m.line_of(key), f"{where}.{key} must not be negative; e.g. {example}")
-                setattr(spec, key, (v[0], math.radians(v[1])))
-        for key in ("odom_error", "odom_noise"):
-            if key in m:
-                example = f"{key}: [0.03, 0.03, 0.05]   # fractions of x, y, yaw motion"
-                v = self.numbers(m, key, where, (3,), example)
-                if min(v) < 0:
-                    raise self.error(m.line_of(key), f"{where}.{key} must not be negative; e.g. {example}")
-                setattr(spec, key, (v[0], v[1], v[2]))
+                v = self.non_negative(m, key, where)
+                setattr(spec, key, (v[0], math.radians(v[1])) if len(v) == 2 else tuple(v))
         if "drive" in m:
             drive = self.text(m, "drive", where)
             if drive != "diff":
@@ -199,6 +188,18 @@ class Mapper(DeviceSections):
                 spec.grippers.append(dev)
         return spec
 
+    def non_negative(self, m: LineMap, key: str, where: str) -> list[float]:
+        """A robot's ``max_speed``/``max_accel`` (m/s or m/s^2, deg/s or deg/s^2) or
+        ``odom_error``/``odom_noise`` (fractions of x, y, yaw motion): numbers >= 0."""
+        if key.startswith("max_"):
+            example, n = f"{key}: [1.0, 100]   # m/s (m/s^2), deg/s (deg/s^2)", 2
+        else:
+            example, n = f"{key}: [0.03, 0.03, 0.05]   # fractions of x, y, yaw motion", 3
+        v = self.numbers(m, key, where, (n,), example)
+        if min(v) < 0:
+            raise self.error(m.line_of(key), f"{where}.{key} must not be negative; e.g. {example}")
+        return v
+
     def obj(self, m: LineMap, where: str) -> ModelSpec:
         name = self.text(m, "name", where, "blob0", required=True)
         where = f"{where} ({name})"
@@ -208,21 +209,3 @@ class Mapper(DeviceSections):
         spec.color = self.color(m, "color", where, spec.color)
         self._common(m, where, spec)
         return spec
-
-
-def image_size(path: Path, rel: str, file: str, line: int) -> tuple[int, int]:
-    """The width and height in pixels of the floorplan bitmap ``path`` (``rel`` as written)."""
-    from PIL import Image
-
-    try:
-        with Image.open(path) as im:
-            w, h = im.size
-    except Exception as e:  # Pillow raises many types for bad files; all mean "not an image"
-        raise WorldFileError(
-            f"floorplan.bitmap '{rel}' is not an image Pillow can read ({type(e).__name__}); use a PNG",
-            file,
-            line,
-        ) from None
-    if w <= 0 or h <= 0:
-        raise WorldFileError(f"floorplan.bitmap '{rel}' is empty ({w} x {h} pixels)", file, line)
-    return int(w), int(h)
