@@ -8,16 +8,18 @@
         └── OutOfWorld        a pose outside the world's bounds
 
 Every message is one line that names the place and says how to fix it; command-line tools print
-``str(error)`` and exit 1, never a traceback.
+``str(error)`` and exit 1, never a traceback. :func:`did_you_mean` is the simulator's one
+"did you mean" for a misspelt name (keywords, keys, model types, presets).
 """
 
 from __future__ import annotations
 
+import difflib
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 
-__all__ = ["SimulatorError", "WorldFileError", "ModelError", "OutOfWorld", "as_world_file_errors"]
+__all__ = ["SimulatorError", "WorldFileError", "ModelError", "OutOfWorld", "as_world_file_errors", "did_you_mean"]
 
 log = logging.getLogger(__name__)
 
@@ -61,3 +63,9 @@ def as_world_file_errors(display: str, too_deep: str) -> Iterator[None]:
         raise WorldFileError(
             f"internal error while loading ({type(e).__name__}: {e}); please report it", display
         ) from e
+
+
+def did_you_mean(word: str, known: Iterable[str], *, cutoff: float = 0.6) -> str:
+    """``"did you mean 'x'?"`` for the known name closest to ``word`` (difflib), else ``""``."""
+    close = difflib.get_close_matches(str(word), list(known), n=1, cutoff=cutoff)
+    return f"did you mean '{close[0]}'?" if close else ""

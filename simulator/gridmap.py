@@ -19,7 +19,24 @@ from scipy import ndimage
 
 from .errors import WorldFileError
 
-__all__ = ["GridMap"]
+__all__ = ["GridMap", "image_size"]
+
+
+def image_size(path: Path, what: str, file: str, line: int) -> tuple[int, int]:
+    """Width and height in pixels of the bitmap ``path``, which a world file names as ``what``
+    (e.g. ``"bitmap 'map.png'"``) at ``file:line``; an unreadable or empty image is a WorldFileError."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            w, h = im.size
+    except Exception as e:  # Pillow raises many types for bad files; all mean "not an image"
+        raise WorldFileError(
+            f"{what} is not an image Pillow can read ({type(e).__name__}); use a PNG", file, line
+        ) from None
+    if w <= 0 or h <= 0:
+        raise WorldFileError(f"{what} is empty ({w} x {h} pixels)", file, line)
+    return int(w), int(h)
 
 
 class GridMap:

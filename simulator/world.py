@@ -8,9 +8,9 @@ This plays Stage's role (thesis 2.2.1, appendix A.1, A.4-A.6). A :class:`World` 
 1. every robot's velocity approaches its commanded ``(v, w)`` within its acceleration and speed
    limits (Player's position2d velocity command);
 2. pymunk moves the bodies: before each sub-step the motors of all robots are applied in one
-   vectorised pass through pymunk's batch interface (:meth:`World._run_motors`); robots collide
-   with the floorplan's walls (static boxes merged from the bitmap's occupied cells), with each
-   other, and push objects that have ``obstacle_return``;
+   vectorised pass through pymunk's batch interface (:meth:`simulator.bodies.Bodies.run_motors`);
+   robots collide with the floorplan's walls (static boxes merged from the bitmap's occupied
+   cells), with each other, and push objects that have ``obstacle_return``;
 3. odometry integrates each robot's true motion in its own frame with a per-robot scale bias and
    white noise, so it drifts the way a wheel encoder does (Stage's ``odom_error``);
 4. every sensor plug-in of :data:`simulator.sensors.SENSOR_TYPES` updates, in that order:
@@ -23,8 +23,9 @@ The simulation interface of Player (and the thesis's ``setPositionOf`` for mixed
 is :meth:`World.set_pose` / :meth:`World.get_pose` by model name, :meth:`World.add_model`,
 :meth:`World.remove_model`, :meth:`World.pause`, :meth:`World.step` and :meth:`World.reset`.
 Runs are deterministic for a given seed when stepped. The drives' and odometry's vectorised maths
-is in :mod:`simulator.drive`; what is left here (about 480 lines) is the body table shared by the
-plug-ins (batched pymunk reads, circles for the ray caster) and the simulation interface.
+is in :mod:`simulator.drive`; the pymunk space, the model table and the batched body reads the
+plug-ins share (poses, circles for the ray caster) in :mod:`simulator.bodies`. What is left here is
+the world's core: building from a spec, stepping, and the simulation and robot interfaces.
 """
 
 from __future__ import annotations
@@ -34,9 +35,8 @@ import math
 from dataclasses import replace
 
 import numpy as np
-import pymunk
-import pymunk.batch
 
+from .bodies import Bodies
 from .controllers import StageControllers
 from .drive import Drives
 from .errors import ModelError, OutOfWorld, SimulatorError
@@ -49,20 +49,13 @@ from .sensors.bumper import BumperReading
 from .sensors.fiducial import Fiducial
 from .sensors.gripper import GripperState
 from .sensors.ranger import SONAR_SUBRAYS, RangerReading
-from .shapes import make_shapes
 from .spec import ModelSpec, RangerSpec, WorldSpec
 
 __all__ = ["World", "RangerReading", "Blob", "BumperReading", "Fiducial", "GripperState", "SONAR_SUBRAYS"]
 
 log = logging.getLogger(__name__)
 
-_CIRCLE_CELL = 2.0  # m, hash-grid cell of the dynamic-body index
 WORLD_MARGIN = 10.0  # m around the floorplan and the models' initial poses that set_pose accepts
-_F = pymunk.batch.BodyFields
-# Motor pass: per body [angle, vx, vy, w, fx, fy, torque] (pymunk's batch layout: fields in flag order).
-_MOTOR_GET = _F.BODY_ID | _F.ANGLE | _F.VELOCITY | _F.ANGULAR_VELOCITY | _F.FORCE | _F.TORQUE
-_MOTOR_SET = _F.VELOCITY | _F.ANGULAR_VELOCITY | _F.FORCE | _F.TORQUE
-_POSE_GET = _F.BODY_ID | _F.POSITION | _F.ANGLE  # per body [x, y, angle]
 _wrap = wrap
 
 
@@ -106,108 +99,51 @@ class World:
         self.time = 0.0
         self.steps = 0
         self.paused = False
-        self.space = pymunk.Space()
-        self.space.damping = 0.2  # passive objects slow down (robots are driven every step)
-        self.space.iterations = 10
-        self.space.collision_slop = 0.002  # m: pymunk's default (0.1) is meant for pixels
-        self._models: dict[str, Model] = {}
-        self._robots: list[Model] = []
-        self._next_uid = 0
-        self._circles: dict[str, CircleIndex] = {}  # per step: the bodies rays see, by flag
+        self.bodies = Bodies(self.grid)
+        self.space = self.bodies.space
         self.sensors: dict[str, Sensor] = {cls.kind: cls(self) for cls in SENSOR_TYPES}
-        self._add_walls()
         self.drives = Drives()
-        # Batch buffers, reused: pymunk allocates one per Buffer and never frees it.
-        self._get_buf = pymunk.batch.Buffer()  # reads fill its own arrays
-        self._set_buf = pymunk.batch.Buffer()  # writes are handed a numpy array each time
-        self._bodies_dirty = True  # the space's bodies or the robot rows changed since the last map
-        self._body_ids = np.zeros(0, dtype=np.uintp)  # space's bodies, in batch order
-        self._body_rows = np.zeros(0, dtype=np.int64)  # robot row of each, -1 for objects
-        self._body_models: list[Model | None] = []  # model of each (None: added from outside)
-        self._body_seen = np.zeros(0, dtype=bool)  # has laser_return: rangers see it as a circle
-        self._body_radius = np.zeros(0)  # m, that circle's radius
-        self._body_uid = np.zeros(0, dtype=np.int64)  # owner id in the ray caster
         for m in self.spec.models:
             self._add(m)
         self.controllers = StageControllers(self.spec.models, self.seed)
 
-    def _add_walls(self) -> None:
-        if self.grid is None:
-            return
-        g = self.grid
-        body = self.space.static_body
-        shapes = []
-        r = g.resolution
-        x0, y0 = g.origin
-        for ix0, iy0, ix1, iy1 in g.rectangles():
-            box = pymunk.Poly(
-                body,
-                [
-                    (x0 + ix0 * r, y0 + iy0 * r),
-                    (x0 + ix1 * r, y0 + iy0 * r),
-                    (x0 + ix1 * r, y0 + iy1 * r),
-                    (x0 + ix0 * r, y0 + iy1 * r),
-                ],
-            )
-            box.friction = 0.6
-            shapes.append(box)
-        self.space.add(*shapes)
-        self._wall_count = len(shapes)
-
     def _add(self, spec: ModelSpec) -> Model:
-        if spec.name in self._models:
-            raise ModelError(f"a model named {spec.name!r} already exists; choose another name")
-        sx, sy = float(spec.size[0]), float(spec.size[1])
-        if not (sx > 0 and sy > 0):
-            raise ModelError(f"model {spec.name!r}: size {spec.size!r} must be positive")
-        body = pymunk.Body(max(float(spec.mass), 1e-3), 1.0)
-        x, y, a = spec.pose
-        body.position = (float(x), float(y))
-        body.angle = float(a)
-        shapes, body.moment, radius = make_shapes(body, spec)  # Stage blocks scaled to size, at origin
-        for shape in shapes:
-            shape.friction = 0.6
-            shape.sensor = not spec.obstacle_return
-        self.space.add(body, *shapes)
-        model = Model(spec=spec, uid=self._next_uid, body=body, shapes=shapes, radius=radius)
-        self._next_uid += 1
-        self._models[spec.name] = model
+        model = self.bodies.add(spec)
         if spec.position:
-            model.row = len(self._robots)
-            self._robots.append(model)
+            x, y, a = spec.pose
             e = np.asarray(spec.odom_error, dtype=float)
             bias = self.rng.uniform(-1.0, 1.0, 3) * e
             limits = (*spec.max_speed, *spec.max_accel)
-            self.drives.add((x, y, a), limits, bias, np.asarray(spec.odom_noise, dtype=float), body.mass, body.moment)
+            b = model.body
+            self.drives.add((x, y, a), limits, bias, np.asarray(spec.odom_noise, dtype=float), b.mass, b.moment)
             for sensor in self.sensors.values():
                 sensor.add(model)
         self._models_changed()
         return model
 
     def _models_changed(self) -> None:
-        self._bodies_dirty = True
-        self._circles = {}
+        self.bodies.changed()
         for sensor in self.sensors.values():
             sensor.dirty = True
 
     # ------------------------------------------------------------------ model access
     @property
     def robot_names(self) -> list[str]:
-        return [m.spec.name for m in self._robots]
+        return [m.spec.name for m in self.bodies.robots]
 
     @property
     def model_names(self) -> list[str]:
-        return list(self._models)
+        return list(self.bodies.models)
 
     @property
     def models(self) -> dict[str, Model]:
         """Every model by name (for sensor plug-ins; do not change the dict)."""
-        return self._models
+        return self.bodies.models
 
     @property
     def robots(self) -> list[Model]:
         """The robots, by row (for sensor plug-ins)."""
-        return self._robots
+        return self.bodies.robots
 
     @property
     def poses(self) -> np.ndarray:
@@ -216,9 +152,9 @@ class World:
 
     def _model(self, name: str) -> Model:
         try:
-            return self._models[name]
+            return self.bodies.models[name]
         except KeyError:
-            raise ModelError(f"no model named {name!r}; models: {', '.join(self._models) or 'none'}") from None
+            raise ModelError(f"no model named {name!r}; models: {', '.join(self.bodies.models) or 'none'}") from None
 
     def _robot(self, name: str) -> Model:
         m = self._model(name)
@@ -259,7 +195,7 @@ class World:
         if m.row >= 0:
             self.drives.prev[m.row] = vals
             self.drives.vel[m.row] = 0.0
-        self._circles = {}
+        self.bodies.moved()
 
     def add_model(self, spec: ModelSpec) -> None:
         """Add a robot or object while running."""
@@ -268,39 +204,28 @@ class World:
     def remove_model(self, name: str) -> None:
         """Remove a model; anything it carried is dropped where it is."""
         m = self._model(name)
-        for o in list(self._models.values()):
+        for o in list(self.bodies.models.values()):
             if o.carried_by == name:
                 self.release(o)
         if m.carried_by is not None:
             self.release(m)
         for sensor in self.sensors.values():
             sensor.remove(m)
-        if m.in_space:
-            self.space.remove(*m.shapes, m.body)
-        del self._models[name]
         if m.row >= 0:
             self.drives.remove(m.row)
-            self._robots.pop(m.row)
-            for i, rm in enumerate(self._robots):
-                rm.row = i
+        self.bodies.remove(m)
         self._models_changed()
 
     def hold(self, o: Model, holder: str) -> None:
         """``o`` is carried by robot ``holder``: out of the physics until :meth:`release`."""
         o.carried_by = holder
-        if o.in_space:
-            self.space.remove(*o.shapes, o.body)
-            o.in_space = False
+        if self.bodies.take_out(o):
             self._models_changed()
 
     def release(self, o: Model) -> None:
         """Put a carried model back into the physics where it is, at rest."""
         o.carried_by = None
-        if not o.in_space:
-            o.body.velocity = (0.0, 0.0)
-            o.body.angular_velocity = 0.0
-            self.space.add(o.body, *o.shapes)
-            o.in_space = True
+        if self.bodies.put_back(o):
             self._models_changed()
 
     def pause(self, paused: bool = True) -> None:
@@ -377,29 +302,12 @@ class World:
         """The bodies in the space whose ``flag`` is set, as circles for the ray caster (built
         once per step and flag: rangers and blobfinders see ``laser_return``, bumpers
         ``obstacle_return``)."""
-        c = self._circles.get(flag)
-        if c is None:
-            models, xy = self.space_poses()
-            seen = (
-                self._body_seen
-                if flag == "laser_return"
-                else np.array([bool(m and getattr(m.spec, flag)) for m in models], dtype=bool)
-            )
-            if not seen.any():
-                c = CircleIndex.empty()
-            else:
-                c = CircleIndex(
-                    xy[seen, 0], xy[seen, 1], self._body_radius[seen], self._body_uid[seen], cell=_CIRCLE_CELL
-                )
-            self._circles[flag] = c
-        return c
+        return self.bodies.circles(flag)
 
     def space_poses(self) -> tuple[list[Model | None], np.ndarray]:
         """Every body in the space in one batched read: its model (None for a body added from
-        outside the world) and its ``(x, y, angle)``. The list is the same object until bodies
-        are added or removed, so plug-ins may cache what they derive from it by identity."""
-        _, vals = self._space_bodies(_POSE_GET, 3)
-        return self._body_models, vals
+        outside the world) and its ``(x, y, angle)``; see :meth:`Bodies.space_poses`."""
+        return self.bodies.space_poses()
 
     # ------------------------------------------------------------------ stepping
     def advance(self) -> bool:
@@ -418,64 +326,23 @@ class World:
 
     def _step_once(self) -> None:
         dt = self.spec.interval_sim
-        n = len(self._robots)
+        n = len(self.bodies.robots)
         if n:
             self.drives.accelerate(dt)  # 1. acceleration-limited velocity towards the command
         # 2. physics.
         h = dt / self.substeps
         for k in range(self.substeps):
             if n:
-                self._run_motors(h, first=k == 0)
+                self.bodies.run_motors(self.drives, h, first=k == 0)
             self.space.step(h)
         self.time = (self.steps + 1) * dt
         self.steps += 1
         if n:
-            self.drives.odometry(self._robot_poses(), dt, self.rng)  # 3.
-        self._circles = {}
+            self.drives.odometry(self.bodies.robot_poses(), dt, self.rng)  # 3.
+        self.bodies.moved()
         # 4. sensors (and the grippers' actuators), in the order of SENSOR_TYPES.
         for sensor in self.sensors.values():
             sensor.step(dt)
-
-    # ------------------------------------------------------------------ motors
-    def _space_bodies(self, fields, width: int) -> tuple[np.ndarray, np.ndarray]:
-        """Every body in the space in one batched read: ``(rows, values)`` with ``rows[i]`` the
-        robot row of body ``i`` (-1 for an object) and ``values[i]`` its ``width`` floats."""
-        buf = self._get_buf
-        buf.clear()
-        pymunk.batch.get_space_bodies(self.space, fields, buf)
-        ids = np.frombuffer(buf.int_buf(), dtype=np.uintp)
-        if self._bodies_dirty or not np.array_equal(ids, self._body_ids):
-            # Bodies were added or removed (pymunk reorders its list on removal): map them again.
-            model_of = {m.body.id: m for m in self._models.values()}
-            ms = [model_of.get(int(i)) for i in ids]  # None: a body added to the space from outside
-            self._body_models = ms
-            self._body_rows = np.array([m.row if m else -1 for m in ms], dtype=np.int64)
-            self._body_seen = np.array([bool(m and m.spec.laser_return) for m in ms], dtype=bool)
-            self._body_radius = np.array([m.radius if m else 0.0 for m in ms], dtype=float)
-            self._body_uid = np.array([m.uid if m else -1 for m in ms], dtype=np.int64)
-            self._body_ids = ids.copy()
-            self._bodies_dirty = False
-        vals = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(ids.size, width)
-        return self._body_rows, vals
-
-    def _run_motors(self, h: float, first: bool) -> None:
-        """Drive every robot body for one pymunk sub-step of ``h`` seconds, in one batched pass
-        (the motor maths is :meth:`simulator.drive.Drives.motors`)."""
-        rows, b = self._space_bodies(_MOTOR_GET, 7)
-        self._set_buf.set_float_buf(self.drives.motors(b, rows, h, self.space.damping, first))
-        pymunk.batch.set_space_bodies(self.space, _MOTOR_SET, self._set_buf)
-
-    def _robot_poses(self) -> np.ndarray:
-        """``(x, y, angle)`` of every robot, by row, in one batched read."""
-        rows, b = self._space_bodies(_POSE_GET, 3)
-        pose = np.empty((len(self._robots), 3))
-        r = rows >= 0
-        pose[rows[r]] = b[r]
-        if r.sum() < len(self._robots):  # a robot held by a gripper is out of the space
-            for m in self._robots:
-                if not m.in_space:
-                    pose[m.row] = (m.body.position.x, m.body.position.y, m.body.angle)
-        return pose
 
     # ------------------------------------------------------------------ summary
     def describe(self) -> dict:
@@ -484,9 +351,9 @@ class World:
             "time": self.time,
             "interval_sim": self.spec.interval_sim,
             "robots": {
-                m.spec.name: {key: s.describe(m.spec.name) for key, s in self._describers()} for m in self._robots
+                m.spec.name: {key: s.describe(m.spec.name) for key, s in self._describers()} for m in self.bodies.robots
             },
-            "objects": [n for n, m in self._models.items() if not m.spec.position],
+            "objects": [n for n, m in self.bodies.models.items() if not m.spec.position],
         }
 
     def _describers(self) -> list[tuple[str, Sensor]]:

@@ -15,8 +15,8 @@
   emergency stop (:mod:`mrs_bridge.baseguard`).
 - ``mapfile`` (:mod:`mrs_bridge.drivers.mapfile`) serves the floorplan as a map.
 
-Slightly over 500 lines: each simulated interface's reading-to-message step lives here, since the
-simulator imports nothing of ours.
+The readings' and device specs' conversions to wire messages are :mod:`mrs_bridge.drivers.simmsgs`
+(the simulator imports nothing of ours).
 """
 
 from __future__ import annotations
@@ -28,19 +28,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rsal.interfaces.bumper import BumperData, BumperGeometry, BumperSegment
-from rsal.interfaces.fiducial import FiducialData, FiducialGeometry, FiducialItem
 from rsal.keys import DeviceAddr
 from rsal.msgs import (
-    BlobData,
-    BlobfinderData,
     ErrorCode,
     GripperCmd,
-    GripperData,
     MessageError,
     Position2dData,
-    PowerData,
-    RangerData,
     RpcError,
     SimulationData,
     VelocityCmd,
@@ -54,6 +47,7 @@ from ..baseguard import ESTOP_OPS, BaseGuard
 from ..config import ConfigError
 from ..driver import Deferred, Driver, OutOfRange, register
 from ..params import param, parse_params
+from . import simmsgs
 
 log = logging.getLogger(__name__)
 
@@ -230,10 +224,6 @@ def robot_devices(spec) -> list[tuple[str, int]]:
     return [("position2d", 0), *player_devices(spec), ("power", 0)]
 
 
-def _battery_volts(percent: float) -> float:
-    return 10.5 + 2.5 * percent / 100.0
-
-
 @register("sim", "stage")
 class SimDriver(Driver):
     interfaces = ("position2d", "ranger", "sonar", "laser", "blobfinder", "gripper", "bumper", "fiducial", "power")
@@ -334,20 +324,13 @@ class SimDriver(Driver):
                 if r is None or self._last_scan.get(a) == r.time:
                     continue
                 self._last_scan[a] = r.time
-                self.publish(a, self._ranger_msg(r))
+                self.publish(a, simmsgs.ranger_data(r))
             elif iface == "blobfinder":
-                self.publish(a, self._blob_msg(w, a.index))
+                blobs = w.blobfinder(self.model, a.index)
+                self.publish(a, simmsgs.blobfinder_data(t, self.spec.blobfinders[a.index], blobs))
             elif iface == "gripper":
                 st = w.gripper(self.model, a.index)
-                msg = GripperData(
-                    t,
-                    st.paddles,
-                    st.lift,
-                    int(st.inner_beam) | (int(st.outer_beam) << 1),
-                    1 if st.carrying else 0,
-                    st.carrying,
-                )
-                self.publish(a, msg)
+                self.publish(a, simmsgs.gripper_data(t, st))
                 prev = self._last_grip.get(a)
                 now_state = (st.paddles, st.lift, st.carrying)
                 if prev is not None and prev != now_state:
@@ -360,7 +343,7 @@ class SimDriver(Driver):
                 if b is None or self._last_contact.get(a) == b.time:
                     continue
                 self._last_contact[a] = b.time
-                self.publish(a, BumperData(b.time, tuple(int(x) for x in b.pressed)))
+                self.publish(a, simmsgs.bumper_data(b))
             elif iface == "fiducial":
                 self._publish_fiducial(w, a)
             elif iface == "power":
@@ -368,53 +351,23 @@ class SimDriver(Driver):
                 self.battery = max(0.0, self.battery - drain * w.spec.interval_sim)
                 if t - self._last_power >= 1.0:
                     self._last_power = t
-                    self.publish(a, PowerData(t, _battery_volts(self.battery), self.battery))
-
-    @staticmethod
-    def _ranger_msg(r) -> RangerData:
-        s = r.spec.sensors
-        if r.spec.kind == "sonar" or len(s) != 1:
-            return RangerData(r.time, r.ranges, 0.0, 0.0, min(x.range_min for x in s), max(x.range_max for x in s))
-        sen = s[0]
-        step = sen.fov / (sen.samples - 1) if sen.samples > 1 else 0.0
-        return RangerData(r.time, r.ranges, -sen.fov / 2 + sen.pose[2], step, sen.range_min, sen.range_max)
+                    self.publish(a, simmsgs.power_data(t, self.battery))
 
     def _publish_fiducial(self, w, a: DeviceAddr) -> None:
-        """The finder's detections when it updated this step; Stage's id 0 (beyond ``range_max_id``)
-        travels as -1, the wire's "not identified" (``fiducial_return`` 0 is never a real id)."""
+        """The finder's detections when it updated this step (:func:`simmsgs.fiducial_data`)."""
         t = w.sensors["fiducial"].updated(self.model, a.index)
         if t < 0 or self._last_contact.get(a) == t:
             return
         self._last_contact[a] = t
-        items = [FiducialItem(f.id or -1, f.pose, f.range, f.bearing) for f in w.fiducial(self.model, a.index)]
-        self.publish(a, FiducialData(t, items))
-
-    def _blob_msg(self, w, index: int) -> BlobfinderData:
-        spec = self.spec.blobfinders[index]
-        blobs = [
-            BlobData(
-                i,
-                (b.color[0] << 16) | (b.color[1] << 8) | b.color[2],
-                b.x,
-                b.y,
-                b.left,
-                b.right,
-                b.top,
-                b.bottom,
-                b.area,
-                b.range,
-                b.bearing,
-            )
-            for i, b in enumerate(w.blobfinder(self.model, index))
-        ]
-        return BlobfinderData(w.time, spec.image[0], spec.image[1], blobs)
+        self.publish(a, simmsgs.fiducial_data(t, w.fiducial(self.model, a.index)))
 
     # ------------------------------------------------------------------ commands
-    def on_cmd(self, addr, msg):
+    def on_cmd(self, addr, msg: VelocityCmd | GripperCmd):
+        """``msg`` arrives typed (``cmd_types``), decoded and validated by the server."""
         if addr.interface == "position2d":
-            self._velocity(VelocityCmd.from_dict(msg))
+            self._velocity(msg)
         elif addr.interface == "gripper":
-            self.world.gripper_command(self.model, GripperCmd.from_dict(msg).action, addr.index)
+            self.world.gripper_command(self.model, msg.action, addr.index)
         else:
             raise MessageError(f"{addr} takes no commands")
 
@@ -477,7 +430,7 @@ class SimDriver(Driver):
             r = w.ranger(self.model, self._src[addr])
             if r is None:
                 raise RpcError(ErrorCode.UNAVAILABLE, "no scan yet")
-            return self._ranger_msg(r).to_dict()
+            return simmsgs.ranger_data(r).to_dict()
         return super().on_rpc(addr, op, args)
 
     def geometry(self, addr) -> dict[str, Any]:
@@ -491,39 +444,15 @@ class SimDriver(Driver):
                 "model": self.model,
             }
         if addr.interface in ("ranger", "sonar", "laser"):
-            r = self.world.rangers(self.model)[self._src[addr]]
-            return {
-                "kind": r.kind,
-                "pose": list(r.pose),
-                "sensors": [
-                    {
-                        "pose": list(x.pose),
-                        "fov": x.fov,
-                        "samples": x.samples,
-                        "range_min": x.range_min,
-                        "range_max": x.range_max,
-                    }
-                    for x in r.sensors
-                ],
-            }
+            return simmsgs.ranger_geometry(self.world.rangers(self.model)[self._src[addr]])
         if addr.interface == "blobfinder":
-            b = s.blobfinders[addr.index]
-            return {
-                "pose": list(b.pose),
-                "fov": b.fov,
-                "range_max": b.range_max,
-                "image": list(b.image),
-                "colors": [(c[0] << 16) | (c[1] << 8) | c[2] for c in b.colors],
-            }
+            return simmsgs.blobfinder_geometry(s.blobfinders[addr.index])
         if addr.interface == "gripper":
-            g = s.grippers[addr.index]
-            return {"pose": list(g.pose), "size": list(g.size), "capacity": 1}
+            return simmsgs.gripper_geometry(s.grippers[addr.index])
         if addr.interface == "bumper":
-            b = s.bumpers[addr.index]
-            return BumperGeometry(b.pose, tuple(BumperSegment(x.pose, x.length) for x in b.segments)).to_dict()
+            return simmsgs.bumper_geometry(s.bumpers[addr.index])
         if addr.interface == "fiducial":
-            f = s.fiducials[addr.index]
-            return FiducialGeometry(tuple(f.pose), f.fov, f.range_min, f.range_max, f.range_max_id).to_dict()
+            return simmsgs.fiducial_geometry(s.fiducials[addr.index])
         return {}
 
     def shutdown(self) -> None:

@@ -59,9 +59,9 @@ def in_contact(world: World, name: str) -> bool:
 
 def _scan(reading):
     """The scan as the ``sim`` driver publishes it (a RangerData with the beam geometry)."""
-    from ..drivers.sim import SimDriver
+    from ..drivers.simmsgs import ranger_data
 
-    return SimDriver._ranger_msg(reading)
+    return ranger_data(reading)
 
 
 @dataclass

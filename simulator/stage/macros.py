@@ -11,12 +11,11 @@ is a tree of :class:`Inst` (merged properties, latest assignment last, each with
 
 from __future__ import annotations
 
-import difflib
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import WorldFileError
+from ..errors import WorldFileError, did_you_mean
 from .keywords import BUILTIN_TYPES
 from .syntax import MAX_NESTING, Body, Define, Include, Parser, Prop, Stmt, Tok, read_text, tokenize
 from .values import where
@@ -130,8 +129,8 @@ class Expander:
         return sorted(BUILTIN_TYPES | set(self.macros))
 
     def _suggest(self, name: str) -> str:
-        close = difflib.get_close_matches(name, self._known_types(), n=1, cutoff=0.6)
-        return f"did you mean '{close[0]}'? " if close else ""
+        hint = did_you_mean(name, self._known_types())
+        return f"{hint} " if hint else ""
 
     def _define(self, s: Define) -> None:
         name, base = s.name_tok.text, s.base_tok.text

@@ -17,12 +17,12 @@ meaning, no code shared):
 
 from __future__ import annotations
 
-import difflib
 import math
 from pathlib import Path
 
 from ..controllers import CONTROLLERS
-from ..errors import WorldFileError
+from ..errors import WorldFileError, did_you_mean
+from ..gridmap import image_size
 from ..spec import FloorplanSpec, ModelSpec, WorldSpec, parse_color
 from .devices import DeviceMapping
 from .keywords import (
@@ -36,7 +36,7 @@ from .keywords import (
     WORLD_KEYS,
 )  # fmt: skip
 from .macros import Inst
-from .syntax import Prop, Tok
+from .syntax import Prop
 from .values import (
     base_key,
     boolean,
@@ -129,8 +129,8 @@ class Mapper(DeviceMapping):
         wp = self.world_props
         for key, p in wp.items():
             if base_key(key) not in WORLD_KEYS and not key.startswith("gui_"):
-                close = difflib.get_close_matches(base_key(key), sorted(WORLD_KEYS), n=1, cutoff=0.6)
-                hint = f"; did you mean '{close[0]}'?" if close else ""
+                hint = did_you_mean(base_key(key), sorted(WORLD_KEYS))
+                hint = f"; {hint}" if hint else ""
                 self.warn(p.tok, f"unknown world keyword '{key}' ignored{hint}", key=("key", p.tok.file, key))
         if (p := wp.get("interval_sim")) is not None:
             v = num(p, "a positive number of milliseconds", "interval_sim 100")
@@ -321,7 +321,7 @@ class Mapper(DeviceMapping):
                 bp.at.file,
                 bp.at.line,
             )
-        w, h = image_size(path, rel, bp.at)
+        w, h = image_size(path, f"bitmap '{rel}'", bp.at.file, bp.at.line)
         px, py, pa = parse_pose(P["pose"]) if "pose" in P else (0.0, 0.0, 0.0)
         if pa != 0.0:
             self.warn(P["pose"].at, f"floorplan '{name}': rotation ignored, a bitmap is always axis-aligned")
@@ -350,20 +350,3 @@ class Mapper(DeviceMapping):
         return FloorplanSpec(
             bitmap=path.absolute(), resolution=res, origin=origin, size=None, name=name, boundary=boundary
         )
-
-
-def image_size(path: Path, rel: str, tok: Tok) -> tuple[int, int]:
-    from PIL import Image
-
-    try:
-        with Image.open(path) as im:
-            w, h = im.size
-    except Exception as e:  # Pillow raises many types for bad files; all mean "not an image"
-        raise WorldFileError(
-            f"bitmap '{rel}' is not an image Pillow can read ({type(e).__name__}); use a PNG",
-            tok.file,
-            tok.line,
-        ) from None
-    if w <= 0 or h <= 0:
-        raise WorldFileError(f"bitmap '{rel}' is empty ({w} x {h} pixels)", tok.file, tok.line)
-    return int(w), int(h)

@@ -8,11 +8,10 @@ example. :class:`Reporter` collects the warnings of a load, once each.
 
 from __future__ import annotations
 
-import difflib
 import logging
 import math
 
-from ..errors import WorldFileError
+from ..errors import WorldFileError, did_you_mean
 from .syntax import INDEX_RE, Prop, Tok, show
 
 __all__ = ["Pose", "Reporter", "bad", "base_key", "boolean", "check", "compose", "integer", "num", "nums",
@@ -188,8 +187,8 @@ class Reporter:
             base = base_key(key)
             if base in known or base.startswith("gui_"):
                 continue
-            close = difflib.get_close_matches(base, sorted(known), n=1, cutoff=0.6)
-            hint = f"; did you mean '{close[0]}'?" if close else ""
+            hint = did_you_mean(base, sorted(known))
+            hint = f"; {hint}" if hint else ""
             self.warn(p.tok, f"unknown keyword '{key}' in {what} ignored{hint}", key=("key", p.tok.file, key))
 
 

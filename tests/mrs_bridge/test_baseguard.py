@@ -13,7 +13,7 @@ from mrs_bridge.config import ConfigError, parse_config
 from mrs_bridge.driver import Deferred
 from mrs_bridge.server import DeviceServer
 from rsal.keys import parse_device
-from rsal.msgs import ErrorCode, Position2dData, RpcError, decode_map
+from rsal.msgs import ErrorCode, Position2dData, RpcError, VelocityCmd, decode_map
 from rsal.testing import FakeServer, FakeSession
 from tests.conftest import MAPS
 
@@ -127,7 +127,7 @@ def _step(simulation, n: int = 5) -> None:
 def test_sim_base_stops_when_commands_stop_and_says_so(sim):
     simulation, robot, clock, session = sim
     addr = parse_device("r0:position2d:0")
-    robot.on_cmd(addr, {"v": 0.4, "w": 0.0})
+    robot.on_cmd(addr, VelocityCmd(0.4, 0.0))
     _step(simulation, 10)
     assert robot.world.velocity("r0")[0] == pytest.approx(0.4, abs=0.05)
     clock.t += 0.4  # refreshed in time: keeps driving
@@ -137,7 +137,7 @@ def test_sim_base_stops_when_commands_stop_and_says_so(sim):
     _step(simulation)
     assert robot.world.velocity("r0") == pytest.approx((0.0, 0.0), abs=1e-6)
     assert _data(session).timed_out
-    robot.on_cmd(addr, {"v": 0.2, "w": 0.0})  # the next command moves it again and clears the flag
+    robot.on_cmd(addr, VelocityCmd(0.2, 0.0))  # the next command moves it again and clears the flag
     _step(simulation)
     d = _data(session)
     assert not d.timed_out and d.vel[0] > 0.1
@@ -157,14 +157,14 @@ def test_sim_base_emergency_stop_latches_until_released(sim):
     assert robot.world.velocity("r0") == pytest.approx((0.0, 0.0), abs=1e-6)
     assert _data(session).estop
     with pytest.raises(Latched):
-        robot.on_cmd(addr, {"v": 0.4, "w": 0.0})
+        robot.on_cmd(addr, VelocityCmd(0.4, 0.0))
     with pytest.raises(RpcError) as e:
         robot.on_rpc(addr, "set_velocity", {"v": 0.4, "w": 0.0})
     assert e.value.code == "estop"
     _step(simulation)
     assert robot.world.velocity("r0") == pytest.approx((0.0, 0.0), abs=1e-6)
     assert robot.on_rpc(addr, "release", {}) == {"estop": False}
-    robot.on_cmd(addr, {"v": 0.4, "w": 0.0})
+    robot.on_cmd(addr, VelocityCmd(0.4, 0.0))
     _step(simulation, 10)
     d = _data(session)
     assert not d.estop and d.vel[0] > 0.3
