@@ -66,8 +66,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from rsal.geometry import TWO_PI, wrap
-
-from ..params import did_you_mean
+from rsal.suggest import did_you_mean
 
 __all__ = [
     "KEEP_RIGHT",

@@ -24,10 +24,10 @@ from rsal import keys
 from rsal.errors import RsalError
 from rsal.keys import DeviceAddr
 from rsal.msgs import MessageError
+from rsal.suggest import did_you_mean
 
 from ..config import ConfigError, DriverConfig, ServerConfig
 from ..driver import DRIVERS, Driver
-from ..params import did_you_mean
 from .devices import _Device, _Devices
 from .intake import INBOX_MAX, MAX_INPUT, _Inbox, _Intake
 from .rpc import _Rpc
