@@ -28,7 +28,6 @@ is in ``docs/scenarios.md``.
 
 from __future__ import annotations
 
-import difflib
 import inspect
 import math
 import tomllib
@@ -39,6 +38,7 @@ from typing import Any
 import yaml
 
 from rsal.errors import RsalError
+from rsal.suggest import did_you_mean
 
 from .services import check_name
 
@@ -150,8 +150,8 @@ class _Ctx:
             raise self.fail(where, f"must be a map with keys {', '.join(allowed)}, not {_kind(value)}")
         for k in value:
             if not isinstance(k, str) or k not in allowed:
-                near = difflib.get_close_matches(str(k), allowed, n=1)
-                hint = f"did you mean {near[0]!r}?" if near else f"known keys: {', '.join(allowed)}"
+                near = did_you_mean(str(k), allowed)
+                hint = f"did you mean {near!r}?" if near else f"known keys: {', '.join(allowed)}"
                 raise self.fail(_join(where, str(k)), f"unknown key; {hint}")
         for k in required:
             if k not in value:
@@ -322,8 +322,8 @@ def _agents(c: _Ctx, where: str, raw: Any, agent_types: dict[str, str], per_type
     m = c.map(raw, where, _AGENT, required=("type",))
     t = c.text(m["type"], f"{where}.type")
     if t not in agent_types:
-        near = difflib.get_close_matches(t, list(agent_types), n=1)
-        hint = f"did you mean {near[0]!r}?" if near else f"add it to agent_types (known: {', '.join(agent_types)})"
+        near = did_you_mean(t, agent_types)
+        hint = f"did you mean {near!r}?" if near else f"add it to agent_types (known: {', '.join(agent_types)})"
         raise c.fail(f"{where}.type", f"unknown agent type {t!r}; {hint}")
     robot = "" if m.get("robot") is None else c.text(m["robot"], f"{where}.robot")
     agent_id = None if m.get("id") is None else c.text(m["id"], f"{where}.id")
@@ -434,8 +434,8 @@ def check_classes(scenario: Scenario, app: Application) -> None:
                 continue
             for k in a.args:
                 if k not in names:
-                    near = difflib.get_close_matches(k, sorted(names), n=1)
-                    hint = f"did you mean {near[0]!r}?" if near else f"it takes: {', '.join(sorted(names))}"
+                    near = did_you_mean(k, sorted(names))
+                    hint = f"did you mean {near!r}?" if near else f"it takes: {', '.join(sorted(names))}"
                     raise ScenarioError(
                         f"{scenario.source}: applications.{app.name}: agent {a.id}: args.{k}: "
                         f"{cls.__name__} takes no argument {k!r}; {hint}"

@@ -31,6 +31,7 @@ from typing import Any
 
 from rsal.errors import RsalError
 from rsal.keys import DeviceAddr, check_name, parse_device
+from rsal.suggest import did_you_mean
 
 __all__ = ["ConfigError", "DriverConfig", "ServerConfig", "load_config", "parse_config"]
 
@@ -120,8 +121,6 @@ def parse_config(
         if not isinstance(name, str) or not name:
             raise ConfigError(f"{where}: missing 'name' (the driver type, e.g. name = \"sim\")")
         if known_drivers is not None and name not in known_drivers:
-            from .params import did_you_mean  # params imports this module
-
             close = did_you_mean(name, known_drivers)
             hint = f"; did you mean {close!r}?" if close else f"; known drivers: {', '.join(sorted(known_drivers))}"
             raise ConfigError(f"{where}: unknown driver {name!r}{hint}")

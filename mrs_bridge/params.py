@@ -34,14 +34,13 @@ line ``"<file>: driver #n (name): <what>"`` naming the key and a fix:
 
 The text after ``key = value`` is ``must be <expect>``: generated from type, range and ``unit``
 (``"an integer >= 1"``, ``"a number of seconds in [0.2, 30]"``), or the field's ``expect``.
-:func:`did_you_mean` is the one "did you mean" of the package (config keys, driver names,
-algorithm parameters).
+:func:`did_you_mean` is the platform's one "did you mean" (config keys, driver names, algorithm
+parameters, scenario files): it lives in :mod:`rsal.suggest` and is re-exported here.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import json
 import keyword
 import math
@@ -51,18 +50,14 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any, Literal, TypeVar, Union
 
+from rsal.suggest import did_you_mean
+
 from .config import ConfigError, DriverConfig
 
 __all__ = ["param", "parse_params", "did_you_mean", "unknown_key", "describe_params"]
 
 T = TypeVar("T")
 _MISSING = dataclasses.MISSING
-
-
-def did_you_mean(word: str, known: Iterable[str], *, cutoff: float = 0.6) -> str | None:
-    """The known name closest to ``word`` (difflib), or None if none is close enough."""
-    close = difflib.get_close_matches(str(word), list(known), n=1, cutoff=cutoff)
-    return close[0] if close else None
 
 
 def unknown_key(key: str, known: Iterable[str], *, what: str = "parameter", cutoff: float = 0.6) -> str:

@@ -1,6 +1,6 @@
 """``wavefront`` driver: the global planner on the fabric (Player's wavefront, thesis 3.4.1, A.3).
 
-Binds :class:`mrs_bridge.nav.wavefront.Wavefront` and its :class:`~mrs_bridge.nav.wavefront.Executive`::
+Binds :class:`mrs_bridge.nav.wavefront.Wavefront` and its :class:`~mrs_bridge.nav.executive.Executive`::
 
     [[driver]]
     name = "wavefront"
@@ -155,7 +155,8 @@ class WavefrontDriver(Driver):
     def _build(self) -> None:
         if self.exec is not None or self.robot_radius is None or getattr(self, "_grid", None) is None:
             return
-        from ..nav.wavefront import Executive, Wavefront
+        from ..nav.executive import Executive
+        from ..nav.wavefront import Wavefront
 
         t0 = time.perf_counter()
         planner = Wavefront(

@@ -14,12 +14,14 @@ Field Histogram", with Ulrich & Borenstein 1998, "VFH+"; :mod:`~mrs_bridge.nav.n
 Montano 2004, "Nearness Diagram (ND) Navigation"; :mod:`~mrs_bridge.nav.snd` -- Durham & Bullo
 2008, "Smooth Nearness-Diagram Navigation".
 
-What every planner shares, and therefore lives here:
+What every planner shares, and therefore lives here (the parameter table in
+:mod:`~mrs_bridge.nav.localparams`, the geometry of obstacle points in :mod:`~mrs_bridge.nav.obstacles`;
+this module re-exports their names):
 
 * **Parameters** by Player's names and in Player's configuration units (lengths m, speeds m/s,
   angles and turn rates in degrees and deg/s), so a Player ``.cfg`` block maps one to one. They are
   validated once: an unknown name is a ``ValueError`` naming the closest valid one, a bad value one
-  naming the key and the expected range.
+  naming the key and the expected range (:class:`~mrs_bridge.nav.localparams.Param`).
 * **Goal handling**: drive until the position is within the position tolerance, then turn in place
   to the goal yaw until within the angle tolerance; then the status is ``done`` and the command
   zero. Near the goal the speed is capped so the robot can stop on it.
@@ -45,8 +47,9 @@ What every planner shares, and therefore lives here:
   the escape time, then plan again -- and escape again, turning the other way, while still blocked.
 * **A traffic rule**: of two ways round about equally good, take the right one (:data:`KEEP_RIGHT`);
   two robots meeting head-on then pass each other instead of mirroring each other's moves.
-* **Polar helpers** over the obstacle points: sector minimum ranges (:func:`polar_ranges`) and a
-  swept-corridor test (:func:`corridor_clear`), all vectorised with numpy over the points.
+* **Polar helpers** over the obstacle points: sector minimum ranges (:func:`~mrs_bridge.nav.obstacles.polar_ranges`)
+  and a swept-corridor test (:func:`~mrs_bridge.nav.obstacles.corridor_clear`), all vectorised with
+  numpy over the points.
 
 Units inside the objects are SI (metres, radians, seconds). Closed-loop runs on the simulator are
 in :mod:`mrs_bridge.rigs.localsim`.
@@ -56,18 +59,17 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import deque
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from enum import StrEnum
-from numbers import Real
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from rsal.geometry import TWO_PI, wrap
+from rsal.geometry import wrap
+from rsal.suggest import did_you_mean
 
-from ..params import did_you_mean
+from .localparams import Param, check_param
+from .obstacles import ScanMemory, as_points, corridor_clear, free_path_length, polar_ranges
 
 __all__ = [
     "KEEP_RIGHT",
@@ -86,7 +88,6 @@ log = logging.getLogger(__name__)
 _TURN_GAIN = 1.5  # 1/s: in-place turn rate per radian of yaw error at the goal
 KEEP_RIGHT = 0.1  # rad: a way round on the left must be this much nearer the goal to win (traffic rule)
 _GUARD_FRACTIONS = np.array([1.0, 0.8, 0.6, 0.45, 0.3, 0.2, 0.1])  # speeds the guard tries, of the planned one
-_GUARD_HORIZON = 4.0  # m: default look-ahead of free_path_length
 _OPEN_RANGE = 3.0  # m: ranges counted when judging which side is more open
 _REAR_HALF_WIDTH = math.radians(45.0)  # backing up needs this cone behind seen within the memory's time
 _SLIDE_DIRS = np.radians(np.arange(-120.0, 121.0, 10.0))  # headings tried when the guard stops the robot
@@ -114,129 +115,7 @@ class Command(NamedTuple):
 STOP = Command(0.0, 0.0)
 
 
-@dataclass(frozen=True)
-class Param:
-    """One configuration parameter: its default, valid range and unit (Player's units)."""
-
-    default: float | tuple[float, ...] | None  # None: see ``same_as``, or derived by the planner
-    lo: float | tuple[float, ...]
-    hi: float | tuple[float, ...]
-    unit: str = ""
-    doc: str = ""
-    size: int = 1  # 1: a number; k > 1: a list of k numbers
-    integer: bool = False
-    same_as: str | None = None  # the default is this (earlier) parameter's value ...
-    factor: float = 1.0  # ... times this
-
-    def expected(self) -> str:
-        kind = "an integer" if self.integer else "a number"
-        if self.size == 1:
-            return f"{kind} in [{_num(self.lo)}, {_num(self.hi)}]" + (f" {self.unit}" if self.unit else "")
-        lo = self.lo if isinstance(self.lo, tuple) else (self.lo,) * self.size
-        hi = self.hi if isinstance(self.hi, tuple) else (self.hi,) * self.size
-        box = " x ".join(f"[{_num(a)}, {_num(b)}]" for a, b in zip(lo, hi, strict=True))
-        return f"a list of {self.size} numbers in {box}" + (f" ({self.unit})" if self.unit else "")
-
-
-def _num(x: float) -> str:
-    return "inf" if x == math.inf else f"{x:g}"
-
-
 # ----------------------------------------------------------------------------------------------- helpers
-def as_points(points) -> np.ndarray:
-    """Obstacle points as a float64 ``(n, 2)`` array; rows with a non-finite value are dropped."""
-    if points is None:
-        return np.empty((0, 2))
-    p = np.asarray(points, dtype=np.float64)
-    if p.size == 0:
-        return np.empty((0, 2))
-    if p.ndim != 2 or p.shape[1] != 2:
-        raise ValueError(f"points must be an (n, 2) array of robot-frame x, y in metres, not shape {p.shape}")
-    ok = np.isfinite(p).all(axis=1)
-    return p if ok.all() else p[ok]
-
-
-def polar_ranges(points: np.ndarray, n_sectors: int, *, empty: float = math.inf) -> np.ndarray:
-    """Minimum range of the points in each of ``n_sectors`` equal sectors around the robot.
-
-    Sector ``k`` is centred on the direction ``k * 2 pi / n_sectors`` (robot frame, counter-
-    clockwise from straight ahead). Sectors without a point get ``empty``.
-    """
-    out = np.full(n_sectors, empty, dtype=np.float64)
-    if len(points) == 0:
-        return out
-    r = np.hypot(points[:, 0], points[:, 1])
-    k = np.rint(np.arctan2(points[:, 1], points[:, 0]) * (n_sectors / TWO_PI)).astype(np.int64) % n_sectors
-    np.minimum.at(out, k, r)
-    return out
-
-
-def corridor_clear(points: np.ndarray, angle: float, length: float, half_width: float) -> bool:
-    """True if no point lies in the rectangle swept by a disc of radius ``half_width`` moving
-    ``length`` metres from the robot's centre in direction ``angle`` (robot frame)."""
-    if len(points) == 0:
-        return True
-    c, s = math.cos(angle), math.sin(angle)
-    along = points[:, 0] * c + points[:, 1] * s
-    across = -points[:, 0] * s + points[:, 1] * c
-    near = np.abs(across) < half_width
-    reach = along - np.sqrt(np.maximum(half_width * half_width - across * across, 0.0))
-    return not bool(np.any(near & (along > 0.0) & (reach < length)))
-
-
-def free_path_length(points: np.ndarray, curvature, radius: float, horizon: float = _GUARD_HORIZON) -> np.ndarray:
-    """How far (m, along the path of the robot's centre) the robot can drive forward on arcs of
-    the given curvatures (1/m, positive to the left; an array of ``K``) before a disc of ``radius``
-    around its centre touches any of the points. ``horizon`` where nothing is in the way within it.
-
-    Points already inside the disc and ahead of the centre (``x > 0``) stop the robot at once (0);
-    ones inside it and behind are left behind and ignored. One vectorised pass over ``K x n``.
-    """
-    kap = np.atleast_1d(np.asarray(curvature, dtype=np.float64))
-    out = np.full(kap.shape, float(horizon))
-    if len(points) == 0:
-        return out
-    px, py = points[:, 0], points[:, 1]
-    r2 = radius * radius
-    d2 = px * px + py * py
-    if np.any((d2 < r2) & (px > 0.0)):
-        return np.zeros(kap.shape)
-    # Only points the disc can reach within the horizon matter (and not those already inside it,
-    # which are behind the centre and left behind).
-    reach_r = horizon + radius
-    keep = (d2 >= r2) & (d2 < reach_r * reach_r)
-    if not keep.any():
-        return out
-    px, py = px[keep], py[keep]
-    straight = np.abs(kap) < 1e-6
-    if straight.any():
-        hit = (np.abs(py) < radius) & (px > 0.0)
-        if hit.any():
-            d = px[hit] - np.sqrt(r2 - py[hit] ** 2)
-            out[straight] = min(float(horizon), float(d.min()))
-    turn = ~straight
-    if turn.any():
-        k = kap[turn][:, None]
-        rho = 1.0 / k  # signed turning radius; centre of the turn at (0, rho)
-        arho = np.abs(rho)
-        qy = py[None, :] - rho
-        q = np.hypot(px[None, :], qy)
-        reach = np.abs(q - arho) < radius  # the centre's circle passes within `radius` of the point
-        if reach.any():
-            # The disc touches the point where the centre is `radius` from it: at +-delta around the
-            # point's own angle about the turn centre (law of cosines).
-            cos_d = (arho * arho + q * q - r2) / (2.0 * arho * np.maximum(q, 1e-12))
-            delta = np.arccos(np.clip(cos_d, -1.0, 1.0))
-            # Angle travelled (in the direction of the turn) from the start to the point's angle.
-            ang = np.arctan2(qy, px[None, :])
-            start = np.where(k > 0, -0.5 * math.pi, 0.5 * math.pi)
-            travel = np.where(k > 0, ang - start, start - ang) % TWO_PI
-            contact = np.clip(travel - delta, 0.0, None)
-            length = np.where(reach & (contact <= math.pi), arho * contact, np.inf)
-            out[turn] = np.minimum(float(horizon), length.min(axis=1))
-    return out
-
-
 def _floats(value, n: int, what: str) -> tuple[float, ...]:
     try:
         vals = tuple(float(v) for v in value)
@@ -245,81 +124,6 @@ def _floats(value, n: int, what: str) -> tuple[float, ...]:
     if len(vals) != n or not all(math.isfinite(v) for v in vals):
         raise ValueError(f"{what} must be {n} finite numbers, not {value!r}")
     return vals
-
-
-class ScanMemory:
-    """Recent obstacle points, kept in the odometry frame, for the directions the sensors do not see.
-
-    A 240-degree laser is blind behind the robot: a planner that turns in place next to an obstacle
-    forgets it, and a robot backing up cannot see what it backs into. The memory keeps the points
-    of the last ``keep`` seconds within ``reach`` metres and learns the sensors' coverage from where
-    hits appear (a direction without a hit for ``coverage_time`` seconds counts as unseen). Recalled
-    points lie only in unseen directions, so the live scan always wins where there is one.
-    """
-
-    def __init__(
-        self,
-        keep: float = 3.0,
-        reach: float = 2.0,
-        coverage_time: float = 10.0,
-        interval: float = 0.3,
-        decimate: int = 3,
-        sectors: int = 72,
-    ):
-        self.keep, self.reach, self.coverage_time = keep, reach, coverage_time
-        self.interval, self.decimate, self.sectors = interval, decimate, sectors  # every `interval` s, every
-        # `decimate`-th point of a scan is stored
-        self.clear()
-
-    def clear(self) -> None:
-        self._scans: deque[tuple[float, np.ndarray]] = deque()
-        self._seen = np.full(self.sectors, -math.inf)  # robot frame: last hit per direction
-        self._looked = np.full(self.sectors, -math.inf)  # odometry frame: last time in view
-        self._stored = -math.inf
-
-    def _sector(self, pts: np.ndarray) -> np.ndarray:
-        a = np.arctan2(pts[:, 1], pts[:, 0])
-        return np.floor((a + math.pi) * (self.sectors / TWO_PI)).astype(np.int64) % self.sectors
-
-    def update(self, t: float, pose: tuple[float, float, float], pts: np.ndarray) -> None:
-        """Add a scan (robot-frame points) taken at time ``t`` from odometry pose ``pose``."""
-        while self._scans and self._scans[0][0] < t - self.keep:
-            self._scans.popleft()
-        if t - self._stored < self.interval or not len(pts):
-            return
-        self._stored = t
-        self._seen[self._sector(pts)] = t
-        covered = np.flatnonzero(self._seen >= t - self.coverage_time)
-        self._looked[(covered + int(round(pose[2] * self.sectors / TWO_PI))) % self.sectors] = t
-        few = pts[:: self.decimate]
-        near = few[(few[:, 0] ** 2 + few[:, 1] ** 2) < self.reach * self.reach]
-        if len(near):
-            c, s = math.cos(pose[2]), math.sin(pose[2])
-            xy = np.column_stack((pose[0] + c * near[:, 0] - s * near[:, 1], pose[1] + s * near[:, 0] + c * near[:, 1]))
-            self._scans.append((t, xy))
-
-    def looked(self, t: float, pose: tuple[float, float, float], direction: float, half_width: float) -> bool:
-        """Whether every direction within ``half_width`` of ``direction`` (robot frame at ``pose``)
-        was in the sensors' view in the last ``keep`` seconds -- so the memory knows what is there."""
-        w = self.sectors / TWO_PI
-        lo = int(math.floor((pose[2] + direction - half_width + math.pi) * w))
-        hi = int(math.ceil((pose[2] + direction + half_width + math.pi) * w))
-        idx = np.arange(lo, hi + 1) % self.sectors
-        return bool(np.all(self._looked[idx] >= t - self.keep))
-
-    def recall(self, t: float, pose: tuple[float, float, float]) -> np.ndarray:
-        """Remembered points (robot frame at ``pose``) in the directions not covered by the sensors."""
-        unseen = self._seen < t - self.coverage_time
-        if not self._scans or not unseen.any():
-            return np.empty((0, 2))
-        xy = np.concatenate([s for _, s in self._scans]) if len(self._scans) > 1 else self._scans[0][1]
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        dx, dy = xy[:, 0] - pose[0], xy[:, 1] - pose[1]
-        local = np.column_stack((c * dx + s * dy, -s * dx + c * dy))
-        local = local[(local[:, 0] ** 2 + local[:, 1] ** 2) < self.reach * self.reach]
-        if not len(local):
-            return local
-        return local[unseen[self._sector(local)]]
 
 
 # ----------------------------------------------------------------------------------------------- base class
@@ -395,7 +199,7 @@ class LocalPlanner:
         out: dict[str, Any] = {}
         for key, spec in cls.PARAMS.items():
             if key in params:
-                out[key] = _check(cls.name, key, params[key], spec)
+                out[key] = check_param(cls.name, key, params[key], spec)
             elif spec.same_as is not None:
                 ref = out[spec.same_as]
                 out[key] = ref if spec.factor == 1.0 else ref * spec.factor
@@ -655,29 +459,3 @@ class LocalPlanner:
         left = float(r[1:13].sum())  # 10 .. 120 deg
         right = float(r[24:36].sum())  # -120 .. -10 deg
         return 1.0 if left >= right else -1.0
-
-
-def _check(planner: str, key: str, value: Any, spec: Param) -> Any:
-    def bad() -> ValueError:
-        return ValueError(f"{planner}: parameter {key!r} = {value!r} is invalid; expected {spec.expected()}")
-
-    if spec.size == 1:
-        if isinstance(value, bool) or not isinstance(value, Real):
-            raise bad()
-        vals = (float(value),)
-    else:
-        if isinstance(value, str | bytes | Mapping) or not hasattr(value, "__len__"):
-            raise bad()
-        if len(value) != spec.size or any(isinstance(v, bool) or not isinstance(v, Real) for v in value):
-            raise bad()
-        vals = tuple(float(v) for v in value)
-    los = spec.lo if isinstance(spec.lo, tuple) else (spec.lo,) * spec.size
-    his = spec.hi if isinstance(spec.hi, tuple) else (spec.hi,) * spec.size
-    for v, lo, hi in zip(vals, los, his, strict=True):
-        if not (math.isfinite(v) and lo <= v <= hi):
-            raise bad()
-        if spec.integer and v != int(v):
-            raise bad()
-    if spec.size == 1:
-        return int(vals[0]) if spec.integer else vals[0]
-    return vals

@@ -6,7 +6,7 @@ deterministic for a seed and run as fast as the CPU allows:
 
 1. odometry and the laser scan go into :class:`~mrs_bridge.nav.amcl.Amcl`; the localized pose is the
    last estimate moved on by the odometry since (as the amcl driver publishes it);
-2. :class:`~mrs_bridge.nav.wavefront.Executive` turns the localized pose into the current waypoint,
+2. :class:`~mrs_bridge.nav.executive.Executive` turns the localized pose into the current waypoint,
    moved into the odometry frame by :class:`~mrs_bridge.drivers.navcommon.Handover`;
 3. the local planner drives the base with the laser's points.
 
@@ -29,8 +29,9 @@ from simulator.world import World
 from ..drivers.navcommon import Handover
 from ..nav import profile
 from ..nav.amcl import Amcl, AmclParams
+from ..nav.executive import Executive
 from ..nav.grid import NavGrid
-from ..nav.wavefront import Executive, PlanError, Wavefront
+from ..nav.wavefront import PlanError, Wavefront
 
 __all__ = ["RobotStack", "GoalResult", "make_local", "grid_of", "in_contact"]
 

@@ -1,4 +1,4 @@
-"""The device server (mrs_bridge/server.py) in this process on loopback Zenoh, with small drivers
+"""The device server (mrs_bridge/server/) in this process on loopback Zenoh, with small drivers
 defined here: tokens, describe, rpc errors, malformed commands, failure isolation, ``requires``."""
 
 from __future__ import annotations

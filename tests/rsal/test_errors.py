@@ -55,7 +55,7 @@ def test_every_product_exception_is_an_rsal_error_drawn_in_the_tree(name):
         ("mrs_bridge.driver.OutOfRange", ValueError),
         ("mrs_bridge.baseguard.Latched", ValueError),
         ("mrs_bridge.hw.scip.ScipError", ValueError),
-        ("mrs_bridge.server.ServerError", RuntimeError),
+        ("mrs_bridge.server.core.ServerError", RuntimeError),
         ("agents.scenario.ScenarioError", ValueError),
         ("agents.hostproc.HostError", ValueError),
         ("agents.control.api.ApiError", ValueError),

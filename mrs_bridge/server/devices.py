@@ -1,0 +1,147 @@
+"""The device server's devices on the fabric: declaration, readiness tokens and publishing.
+
+Part of :mod:`mrs_bridge.server` (the key space of :mod:`rsal.keys`, docs/protocol.md). Each
+provided device gets a ``data`` and an ``event`` publisher, a ``cmd`` subscriber and an ``rpc/*``
+queryable when its driver is set up, and its liveliness token only when the driver has run its
+first ``update()`` ("ready means ready", :meth:`_Devices._announce`); :meth:`_Devices.set_online`
+withdraws and returns the tokens of hardware that stops answering. Outbound: ``publish`` (the
+hot path), ``publish_event``, and ``send``/``request`` to other devices, local or remote.
+
+:class:`_Devices` is a mixin of :class:`~mrs_bridge.server.DeviceServer`: it uses the server's
+``session``, ``slots``, ``devices``, ``inbox``, ``stats``, ``_pub_cache`` and ``_on_sample``/``_on_query``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import zenoh
+
+from rsal import keys
+from rsal.client import query_rpc
+from rsal.keys import DeviceAddr
+from rsal.msgs import encode
+
+from ..driver import Driver
+from .intake import MAX_PAYLOAD
+
+if TYPE_CHECKING:
+    from .core import _Slot
+
+
+@dataclass
+class _Device:
+    addr: DeviceAddr
+    slot: _Slot
+    token: Any = None
+    pub: Any = None
+    event_pub: Any = None
+    cmd_sub: Any = None
+    rpc_q: Any = None
+    cmd_kinds: tuple | None = None  # message classes its cmd decodes to (None: not looked up yet)
+
+    def undeclare(self) -> None:
+        for name in ("cmd_sub", "rpc_q", "pub", "event_pub", "token"):
+            ent = getattr(self, name)
+            if ent is not None:
+                try:
+                    ent.undeclare()
+                except Exception:  # already closed with the session
+                    pass
+                setattr(self, name, None)
+
+
+class _Devices:
+    """Declares, announces and withdraws devices, and publishes for their drivers."""
+
+    def set_online(self, driver: Driver, online: bool) -> None:
+        """Withdraw (``online`` false) or re-declare the liveliness tokens of ``driver``'s devices,
+        for hardware that stops answering and comes back (clients see the devices lost, then found).
+        Publishers, commands and rpcs stay declared. Scheduler thread only."""
+        driver.online = bool(online)
+        slot = next((s for s in self.slots if s.driver is driver), None)
+        if slot is not None and not slot.announced:
+            return  # not ready yet: the tokens come with the first update (_announce)
+        for a in driver.cfg.provides:
+            dev = self.devices.get(a.without_key())
+            if dev is None:
+                continue
+            if online and dev.token is None:
+                dev.token = self.session.liveliness().declare_token(keys.device_key(dev.addr))
+            elif not online and dev.token is not None:
+                try:
+                    dev.token.undeclare()
+                except Exception:  # already closed with the session
+                    pass
+                dev.token = None
+
+    def _declare(self, slot: _Slot, addr: DeviceAddr) -> None:
+        s = self.session
+        dev = _Device(addr, slot)
+        dev.pub = s.declare_publisher(keys.data_key(addr))
+        # Reliable, but never blocking: the scheduler publishes, and a peer that reads slowly must
+        # not hold it up (with BLOCK, a full link to one slow subscriber stalls the whole server).
+        # An event to a congested peer is dropped for that peer only.
+        dev.event_pub = s.declare_publisher(
+            keys.event_key(addr),
+            reliability=zenoh.Reliability.RELIABLE,
+            congestion_control=zenoh.CongestionControl.DROP,
+        )
+        dev.cmd_sub = s.declare_subscriber(
+            keys.cmd_key(addr), lambda smp, a=addr: self._on_sample(("cmd", a), smp.payload, MAX_PAYLOAD)
+        )
+        dev.rpc_q = s.declare_queryable(f"{keys.PREFIX}/{addr.path}/rpc/*", lambda q, a=addr: self._on_query(a, q))
+        self.devices[addr] = dev
+        self._pub_cache.clear()
+
+    def _announce(self, slot: _Slot) -> None:
+        """Declare the liveliness tokens of ``slot``'s devices: it is set up and has run once."""
+        slot.announced = True
+        if not slot.driver.online:  # hardware not answering yet: its tokens come with set_online(True)
+            return
+        for a in slot.driver.cfg.provides:
+            dev = self.devices.get(a.without_key())
+            if dev is not None and dev.token is None:
+                dev.token = self.session.liveliness().declare_token(keys.device_key(dev.addr))
+
+    # ------------------------------------------------------------------ outbound
+    def publish(self, addr: DeviceAddr, msg) -> None:
+        # Drivers publish with the same address objects every time (their cfg.provides): look the
+        # device's ``put`` up by identity first, which skips hashing and comparing the dataclass.
+        # The cache holds the address object, so its id cannot be reused while the entry lives; it
+        # is emptied whenever a device is declared or withdrawn (which undeclares its publisher).
+        hit = self._pub_cache.get(id(addr))
+        if hit is None or hit[0] is not addr:
+            dev = self.devices.get(addr.without_key() if addr.key else addr)
+            if dev is None or dev.pub is None:
+                return
+            hit = self._pub_cache[id(addr)] = (addr, dev.pub.put)
+        pack = getattr(msg, "to_msgpack", None)  # encode(), without a call on the hot path
+        hit[1](pack() if pack is not None else encode(msg))
+        self.stats["published"] += 1
+
+    def send(self, addr: DeviceAddr, msg) -> None:
+        """Put a command on another device's ``cmd`` key (a required device, local or remote)."""
+        self.session.put(keys.cmd_key(addr.without_key()), encode(msg))
+
+    def request(self, slot_driver: Driver, addr: DeviceAddr, op: str, args: dict | None, timeout: float) -> None:
+        """Query ``rpc/<op>`` of another device; the result reaches ``driver.on_reply(addr, op, result,
+        error)`` on the scheduler thread (``error`` an :class:`RpcError`, ``result`` None then)."""
+        slot = next((s for s in self.slots if s.driver is slot_driver), None)
+        if slot is None:
+            raise ValueError("request() from a driver this server does not host")
+        query_rpc(
+            self.session,
+            addr.without_key(),
+            op,
+            args,
+            timeout,
+            lambda outcome: self.inbox.put(("reply", slot, addr, op, outcome)),
+        )
+
+    def publish_event(self, addr: DeviceAddr, msg) -> None:
+        dev = self.devices.get(addr.without_key() if addr.key else addr)
+        if dev is None or dev.event_pub is None:
+            return
+        dev.event_pub.put(encode(msg))
