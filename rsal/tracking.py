@@ -66,8 +66,13 @@ class PoseTracker:
         yaw_accel_std: float = 1.5,
         horizon: float = 1.0,
     ):
-        for name, v in (("pos_std", pos_std), ("yaw_std", yaw_std), ("accel_std", accel_std),
-                        ("yaw_accel_std", yaw_accel_std), ("horizon", horizon)):
+        for name, v in (
+            ("pos_std", pos_std),
+            ("yaw_std", yaw_std),
+            ("accel_std", accel_std),
+            ("yaw_accel_std", yaw_accel_std),
+            ("horizon", horizon),
+        ):
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"PoseTracker: {name} = {v!r} must be a positive number")
         self.accel_var = accel_std**2
@@ -138,8 +143,13 @@ class PoseTracker:
         dt = min(max(0.0, t - self.t), self.horizon)
         s = self._F(dt) @ self.kf.x
         return TrackedPose(
-            float(s[0, 0]), float(s[2, 0]), _wrap(float(s[4, 0])),
-            float(s[1, 0]), float(s[3, 0]), float(s[5, 0]), self.t + dt,
+            float(s[0, 0]),
+            float(s[2, 0]),
+            _wrap(float(s[4, 0])),
+            float(s[1, 0]),
+            float(s[3, 0]),
+            float(s[5, 0]),
+            self.t + dt,
         )
 
 
