@@ -97,11 +97,11 @@ def run(
             yaw_hold.append(abs(math.remainder(held[i][2] - yaw, math.tau)))
             yaw_kf.append(abs(math.remainder(p.yaw - yaw, math.tau)))
     eh, ek = np.array(err_hold), np.array(err_kf)
-    speed = float(np.mean([abs(world.velocity(n)[0]) for n in names]))
+    speed = float(np.mean([abs(world.velocity(n)[0]) for n in names]))  # m/s at the end of the run
     return {
         "robots": robots,
         "samples": len(eh),
-        "mean_speed": round(speed, 3),
+        "end_speed": round(speed, 3),
         "hold_mean_m": round(float(eh.mean()), 4),
         "hold_p95_m": round(float(np.percentile(eh, 95)), 4),
         "kalman_mean_m": round(float(ek.mean()), 4),
