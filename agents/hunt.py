@@ -9,7 +9,8 @@ false when the planner refused it (unreachable), aborted it or it was not reache
 ``goal_timeout`` seconds. Agents in the same process use ``await agent.goto(x, y, yaw)``.
 
 :class:`FollowAgent` is the hunter of thesis 4.2.1: it listens to ``send_position`` and navigates to
-its prey's latest broadcast position, planning again when the prey has moved more than
+where its prey is now -- the prey's broadcast positions tracked between messages by a Kalman filter
+(:mod:`rsal.tracking`) -- planning again when the prey has moved more than
 ``replan_distance`` from the current goal (at most once per ``replan_interval``). When its localized
 pose comes within ``capture_distance`` of the prey it publishes ``outcome`` ``caught`` (subject: the
 prey's robot) and stops; the prey (:class:`agents.classes.EscapeAgent`) then spins in place.
@@ -37,6 +38,7 @@ from rsal.clock import clock, wait_for
 from rsal.data import Position
 from rsal.msgs import ErrorCode, RpcError
 from rsal.robot import NavRobot, RobotError
+from rsal.tracking import Tracks
 
 from .classes import RobotAgent
 from .contractnet import Initiator, Participant
@@ -280,6 +282,7 @@ class FollowAgent(NavAgent):
         self.replan_distance = _number(agent_id, "replan_distance", replan_distance, 0.0, 20.0)
         self.replan_interval = _number(agent_id, "replan_interval", replan_interval, 0.0, 60.0)
         self.positions: dict[str, SendPosition] = {}  # robot id -> latest broadcast position
+        self.tracks = Tracks()  # robot id -> Kalman track of its broadcasts (where it is between them)
         self.caught: dict[str, str] = {}  # prey robot -> the outcome text
         self.catches = 0  # prey this hunter caught
         self.prey_robots: set[str] = {prey} if prey else set()
@@ -314,6 +317,7 @@ class FollowAgent(NavAgent):
         p: SendPosition = msg.body
         if p.frame == "map":
             self.positions[p.robot] = p
+            self.tracks.update(p.robot, p.x, p.y, p.yaw, clock().now())
 
     def _on_caught(self, msg: Message) -> None:
         o: Outcome = msg.body
@@ -425,6 +429,9 @@ class FollowAgent(NavAgent):
             self.publish(Outcome.SERVICE, Outcome("caught", prey, text))
             self._end_chase()
             return
+        # plan for where the prey is now (its track between broadcasts), not where it last said it was
+        target = self.tracks.predict(prey, now) or target
+        d = math.hypot(target.x - me.x, target.y - me.y)
         g = self._chase_goal  # the prey's position the current goal was made from
         moved = g is None or math.hypot(target.x - g.x, target.y - g.y) > self.replan_distance
         idle = self.goal_state != "driving"
