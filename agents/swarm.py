@@ -11,6 +11,8 @@ default) and keeps every other robot's latest pose on a :class:`rsal.data.Board`
 it receives: each broadcast's conversation id is ``p<sequence number>``, so a receiver counts the
 gaps per sender (delivery ratio), and the receive wall time minus the message's ``time`` is the
 latency (a log-scale histogram). It publishes these figures on the ``swarm_stats`` service.
+Periods (control cycle, broadcasts, the monitor's samples) count the process's clock
+(:mod:`rsal.clock`: simulated seconds under a simulator's clock); latency stays wall time.
 
 Agents of one host share the costly parts (the scaling the thesis's Jadex platform did not have):
 one Fabric and one DeviceNode to find all robots, one control loop on the host's asyncio loop that
@@ -45,6 +47,7 @@ import numpy as np
 
 from rsal.behaviours import SECTOR_COUNT, Sectors, Subsumption, beam_points, fuse
 from rsal.client import HOLD_REFRESH, Fabric
+from rsal.clock import clock
 from rsal.data import Board, BoardObject, Position, normalize_angle
 from rsal.msgs import RpcError
 from rsal.robot import Pioneer, RobotError
@@ -298,7 +301,7 @@ class SwarmPioneer(Pioneer):
         b = self.behaviour
         b.yaw = yaw
         before = b.state
-        v, w = b.step(self.sectors(), time.monotonic(), bool(m.stall))
+        v, w = b.step(self.sectors(), clock().now(), bool(m.stall))
         if b.state != before:
             for fn in self._state_listeners:
                 fn(b.state)
@@ -389,7 +392,7 @@ class _Hub:
         slices of :attr:`slice_size` robots with the loop served in between, so that no message waits
         behind a whole cycle, and with no thread per robot (nor the GIL hand-overs between them)."""
         loop = asyncio.get_running_loop()
-        next_t = loop.time()
+        next_t = clock().now()  # the cycle counts the process's clock; its busy figures wall time
         while True:
             start = loop.time()
             busy = 0.0
@@ -410,11 +413,11 @@ class _Hub:
             self.busy_s += busy  # the robots' updates only, not the messages served in between
             self.max_cycle_s = max(self.max_cycle_s, loop.time() - start)
             next_t += self.period
-            now = loop.time()
+            now = clock().now()
             if next_t < now:
                 self.overruns += 1
                 next_t = now
-            await asyncio.sleep(next_t - now)
+            await clock().asleep_until(next_t)
 
     def detach(self, agent: SwarmAgent) -> None:
         self.agents.pop(agent.id, None)
@@ -578,10 +581,10 @@ class SwarmAgent(RobotAgent):
             raise
         self.configure(self.pioneer)
         self._hub.add_robot(self.robot, self.pioneer)
-        loop = asyncio.get_running_loop()
+        now = clock().now()
         # Spread the broadcasts of a crowd started at once over the reporting period.
-        self._next_report = loop.time() + random.Random(self.id).uniform(0.0, self.report_every)
-        self._next_stats = loop.time() + self.stats_every
+        self._next_report = now + random.Random(self.id).uniform(0.0, self.report_every)
+        self._next_stats = now + self.stats_every
 
     def _build_shared(self, hub: _Hub) -> Pioneer:  # a worker thread
         name = self.robot
@@ -635,16 +638,15 @@ class SwarmAgent(RobotAgent):
     async def body(self) -> None:
         """``step()`` when a broadcast or a stats message is due (not every control period: the
         robot's cycle runs in the host's shared control loop)."""
-        loop = asyncio.get_running_loop()
         while True:
             await self.step()
             due = self._next_report
             if self.stats_every > 0:
                 due = min(due, self._next_stats)
-            await asyncio.sleep(max(0.0, due - loop.time()))
+            await clock().asleep_until(due)
 
     async def step(self) -> None:
-        now = asyncio.get_running_loop().time()
+        now = clock().now()
         if now >= self._next_report:
             self._next_report = max(self._next_report + self.report_every, now)
             msg = self.pose_message() if self.broadcasting else None
@@ -818,11 +820,10 @@ class SwarmMonitor(Agent):
 
     async def body(self) -> None:
         sim = await asyncio.to_thread(self._simulation)
-        loop = asyncio.get_running_loop()
         t0 = sim.latest.t
-        next_report = loop.time() + self.report_every
+        next_report = clock().now() + self.report_every
         while True:
-            started = loop.time()
+            started = clock().now()
             t = sim.latest.t
             try:
                 xy = await self.poses(sim)
@@ -835,10 +836,10 @@ class SwarmMonitor(Agent):
                 self.publish(Outcome.SERVICE, self.verdict)
                 log.info("%s: %s", self.id, self.verdict.text)
                 return
-            if loop.time() >= next_report:
+            if clock().now() >= next_report:
                 next_report += self.report_every
                 log.info("%s: %s", self.id, self.judge(t - t0).text)
-            await asyncio.sleep(max(0.0, self.sample_every - (loop.time() - started)))
+            await clock().asleep_until(started + self.sample_every)
 
     async def killed(self) -> None:
         if self.fabric is not None:
