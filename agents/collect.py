@@ -188,7 +188,7 @@ class ExploreAgent(WallfollowAgent):
 
     async def step(self) -> None:
         await super().step()
-        now = asyncio.get_running_loop().time()
+        now = clock().now()
         if self.blobs and now >= self._next_repeat:
             for rep in self.blobs:
                 self.publish(BLOB, rep.to_dict())
