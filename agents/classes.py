@@ -28,6 +28,7 @@ import time
 from collections.abc import Sequence
 
 from rsal.client import Fabric
+from rsal.clock import clock
 from rsal.data import Position
 from rsal.msgs import RpcError
 from rsal.robot import Pioneer, Robot, RobotError, robot_devices
@@ -198,10 +199,10 @@ class RobotAgent(Agent):
             await self.find_robot(Fabric(self._require_host().session, own_session=False))
         self.configure(self.pioneer)
         self.pioneer.start()
-        self._next_report = asyncio.get_running_loop().time()
+        self._next_report = clock().now()
 
     async def step(self) -> None:
-        now = asyncio.get_running_loop().time()
+        now = clock().now()  # report_every counts the process's clock (simulated seconds in simulation)
         if now < self._next_report:
             return
         self._next_report = max(self._next_report + self.report_every, now)

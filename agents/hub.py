@@ -35,6 +35,7 @@ import time
 from collections.abc import Callable
 
 from rsal.client import Fabric
+from rsal.clock import clock
 from rsal.data import Board, BoardObject, Position
 from rsal.robot import Robot
 
@@ -120,7 +121,7 @@ class RobotHub:
         slices of :attr:`slice_size` robots with the loop served in between, so that no message waits
         behind a whole cycle, and with no thread per robot (nor the GIL hand-overs between them)."""
         loop = asyncio.get_running_loop()
-        next_t = loop.time()
+        next_t = clock().now()  # the cycle counts the process's clock; its busy figures wall time
         while True:
             start = loop.time()
             busy = 0.0
@@ -141,11 +142,11 @@ class RobotHub:
             self.busy_s += busy  # the robots' updates only, not the messages served in between
             self.max_cycle_s = max(self.max_cycle_s, loop.time() - start)
             next_t += self.period
-            now = loop.time()
+            now = clock().now()
             if next_t < now:
                 self.overruns += 1
                 next_t = now
-            await asyncio.sleep(next_t - now)
+            await clock().asleep_until(next_t)
 
     def detach(self, agent: Agent) -> None:
         """Detach ``agent``; the last one closes the hub (loop, subscription, node, fabric)."""

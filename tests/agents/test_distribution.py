@@ -247,17 +247,19 @@ def test_three_navagents_reach_distinct_targets_with_rsal_run(procs):
 
 
 @pytest.mark.timeout(900)
-def test_killed_navagent_is_dropped_and_its_target_reached_by_another(procs):
-    """Three real NavAgents (AMCL + Wavefront + VFH in ``rsal sim``) in this process; the one holding
-    target 0 is killed once all are driving: it is dropped and a live one drives to target 0."""
+def test_killed_navagent_is_dropped_and_its_target_reached_by_another(procs, sim_time):
+    """Three real NavAgents (AMCL + Wavefront + VFH in ``rsal sim`` at the speed-up, the agents on its
+    clock) in this process; the one holding target 0 is killed once all are driving: it is dropped
+    and a live one drives to target 0."""
     from agents.navigation import NavAgent
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     world = str(MAPS / "distribution.world")
-    procs(rsal_cmd("sim", world, "--listen", ep, "--nav", "vfh", "--nav-robots", "r0,r1,r2"))
+    procs(rsal_cmd("sim", world, "--listen", ep, "--nav", "vfh", "--nav-robots", "r0,r1,r2", "--speedup", SPEEDUP))
 
     async def main():
         async with AgentHost.connect(TransportArgs(connect=[ep])) as host:
+            await asyncio.to_thread(sim_time, host.session)
             navs = [NavAgent(f"nav{i}", robot=f"r{i}", startup_timeout=120) for i in range(3)]
             await asyncio.gather(*(host.start(a) for a in navs))
             disp = DispersionAgent(

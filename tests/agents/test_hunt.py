@@ -16,6 +16,7 @@ import asyncio
 import math
 import threading
 import time
+from types import SimpleNamespace
 
 import pytest
 
@@ -23,7 +24,9 @@ from agents.navigation import NavAgent
 from agents.registry import resolve
 from agents.runtime import Agent, AgentHost
 from agents.scenarios.hunt import EscapeAgent, FollowAgent
-from agents.services import NewGoal, Outcome
+from agents.services import Message, NewGoal, Outcome, SendPosition
+from rsal.clock import Clock, set_clock
+from rsal.data import Position
 from rsal.robot import RobotError
 from rsal.transport import TransportArgs, open_session
 from tests.conftest import MAPS, ROOT, SPEEDUP, LoopThread, free_port, rsal_cmd, wait_until
@@ -102,6 +105,38 @@ def _start_all(lt: LoopThread, host: AgentHost, agents: list) -> None:
 def test_registry_resolves_the_hunt_classes():
     assert resolve("NavAgent") is NavAgent
     assert resolve("FollowAgent") is FollowAgent
+
+
+class _FakeClock(Clock):
+    def __init__(self):
+        self.t = 100.0
+
+    def now(self) -> float:
+        return self.t
+
+
+def test_hunter_plans_for_where_the_prey_is_now_between_its_broadcasts():
+    """The hunter's goal is the prey's tracked pose at the step's time, not its last broadcast."""
+    c = _FakeClock()
+    old = set_clock(c)
+    try:
+        h = FollowAgent("h1", robot="r1", prey="r0", replan_interval=0.1)
+        h.pioneer = SimpleNamespace(position=Position(0.0, 0.0, 0.0))  # the nav robot, as far as step needs
+        h._next_report = math.inf  # no broadcast of its own: no host here
+        goals: list[Position] = []
+        h.start_goal = lambda goal, report=True: goals.append(goal)
+        for i in range(6):  # the prey drives +x at 0.5 m/s, broadcasting at 2 Hz
+            c.t = 100.0 + 0.5 * i
+            h._on_position(
+                Message("send_position", "prey0", f"p{i}", c.t, SendPosition("r0", 3.0 + 0.25 * i, 1.0, 0.0))
+            )
+        c.t += 0.4  # between two broadcasts: the last said x = 4.25, the prey is at 4.45 now
+        asyncio.run(h.step())
+        assert len(goals) == 1
+        assert goals[0].x == pytest.approx(4.45, abs=0.03) and goals[0].y == pytest.approx(1.0, abs=0.03)
+        assert h.positions["r0"].x == 4.25  # the last broadcast is still kept as it came
+    finally:
+        set_clock(old)
 
 
 def test_bad_arguments_are_clear_errors():

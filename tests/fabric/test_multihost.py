@@ -1,7 +1,8 @@
 """The fabric across hosts: network namespaces made by the test (tests/netns.py) stand in for a
 simulator host, two robot hosts and an agent host on one LAN.
 
-- sim host: ``rsal sim maps/hunt.world`` — the robots' bases and lasers, the simulation;
+- sim host: ``rsal sim maps/hunt.world`` — the robots' bases and lasers, the simulation (at the
+  suite's speed-up; the agents follow its clock with ``RSAL_SIM_TIME``, the leases stay wall time);
 - robot host 1 and 2: ``rsal serve`` with the hunters r1's / r2's navigation stack
   (deploy/r0-nav.toml for that robot: mapfile, vfh, amcl, wavefront), requiring their base and
   laser over the network;
@@ -27,7 +28,7 @@ import time
 
 import pytest
 
-from tests.conftest import MAPS, ROOT, Proc, rsal_cmd, wait_until
+from tests.conftest import MAPS, ROOT, SPEEDUP, Proc, rsal_cmd, wait_until
 from tests.netns import Lan, unavailable
 
 why = unavailable()
@@ -111,13 +112,13 @@ def test_a_robot_host_cut_off_is_lost_the_others_continue_and_it_rejoins(lan, tm
     sim_ep = f"tcp/{sim_ip}:7447"
     procs: list[Proc] = []
 
-    def start(host: str, argv: list[str]) -> Proc:
-        p = Proc(lan.cmd(host, argv))
+    def start(host: str, argv: list[str], env: dict | None = None) -> Proc:
+        p = Proc(lan.cmd(host, argv), env=env)
         procs.append(p)
         return p
 
     try:
-        start("sim", rsal_cmd("sim", str(WORLD), "--no-map", "--listen", sim_ep, *TUNING))
+        start("sim", rsal_cmd("sim", str(WORLD), "--no-map", "--listen", sim_ep, "--speedup", SPEEDUP, *TUNING))
         for host, robot, ip in (("robot1", "r1", r1_ip), ("robot2", "r2", r2_ip)):
             start(
                 host,
@@ -144,7 +145,9 @@ def test_a_robot_host_cut_off_is_lost_the_others_continue_and_it_rejoins(lan, tm
 
         # The hunt, from the agent host; r1 moves under its hunter.
         hunt = start(
-            "agents", rsal_cmd("run", str(SCENARIO), "--app", "fleet", "--connect", sim_ep, "--progress", "2", *TUNING)
+            "agents",
+            rsal_cmd("run", str(SCENARIO), "--app", "fleet", "--connect", sim_ep, "--progress", "2", *TUNING),
+            env={"RSAL_SIM_TIME": "sim"},  # the agents follow the simulation's clock (rsal.clock)
         )
         wait_until(lambda: watch.pose("r1:position2d:0") is not None, 30, "r1's odometry at the agent host")
         start_pose = watch.pose("r1:position2d:0")

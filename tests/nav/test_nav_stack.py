@@ -1,5 +1,6 @@
 """The navigation stack on the fabric, multi-process: ``rsal sim WORLD --nav PLANNER`` serves amcl,
 a local planner and wavefront per robot; a client in this process (and ``rsal goto``) sends goals.
+The simulator runs at the suite's speed-up (the navigation drivers work on each odometry message, so they follow it).
 
 Test room (maps/testroom.world): walls at x = ±4.8, y = ±3.8, a box at x 2..3, y -0.5..0.5, r0
 starts at (-2, 0, 0).
@@ -12,13 +13,13 @@ import time
 
 import pytest
 
-from tests.conftest import ROOT, rsal_cmd, wait_until
+from tests.conftest import ROOT, SPEEDUP, rsal_cmd, wait_until
 
 WORLD = str(ROOT / "maps" / "testroom.world")
 
 
 def start_nav(procs, port: int, planner: str):
-    p = procs(rsal_cmd("sim", WORLD, "--nav", planner, "--speedup", "2", "--listen", f"tcp/127.0.0.1:{port}"))
+    p = procs(rsal_cmd("sim", WORLD, "--nav", planner, "--speedup", SPEEDUP, "--listen", f"tcp/127.0.0.1:{port}"))
     return p
 
 

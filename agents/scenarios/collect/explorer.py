@@ -14,6 +14,7 @@ from agents.classes import WallfollowAgent
 from agents.registry import agent_class
 from agents.services import SendPosition
 from rsal.client import Fabric
+from rsal.clock import clock
 from rsal.data import BlobfinderBlob, Position
 from rsal.devices import Simulation
 from rsal.robot import ExploreRobot, Robot
@@ -116,7 +117,7 @@ class ExploreAgent(WallfollowAgent):
 
     async def step(self) -> None:
         await super().step()
-        now = asyncio.get_running_loop().time()
+        now = clock().now()
         if self.blobs and now >= self._next_repeat:
             for rep in self.blobs:
                 self.publish(BLOB, rep.to_dict())

@@ -1,11 +1,12 @@
 """The hunters and the prey of Hunt and Prey (thesis 4.2.1).
 
 :class:`FollowAgent` is the hunter: a :class:`agents.navigation.NavAgent` that listens to
-``send_position`` and navigates to its prey's latest broadcast position, planning again when the
-prey has moved more than ``replan_distance`` from the current goal (at most once per
-``replan_interval``). When its localized pose comes within ``capture_distance`` of the prey it
-publishes ``outcome`` ``caught`` (subject: the prey's robot) and stops; the prey
-(:class:`EscapeAgent`) then spins in place.
+``send_position`` and navigates to where its prey is now -- the prey's broadcast positions tracked
+between messages by a Kalman filter (:mod:`rsal.tracking`) -- planning again when the prey has
+moved more than ``replan_distance`` from the current goal (at most once per ``replan_interval``).
+When its localized pose comes within ``capture_distance`` of the prey it publishes ``outcome``
+``caught`` (subject: the prey's robot) and stops; the prey (:class:`EscapeAgent`) then spins in
+place.
 
 In the advanced form (``allocation="contract_net"``) the hunters share out the prey themselves with
 the contract net of :mod:`agents.contractnet`: the hunter with the lowest id is the auctioneer. Every
@@ -35,6 +36,7 @@ from agents.services import Hello, Message, Outcome, SendPosition, match
 from rsal.clock import clock
 from rsal.data import Position
 from rsal.robot import Pioneer
+from rsal.tracking import Tracks
 
 from .messages import HUNT_SERVICE
 
@@ -75,6 +77,7 @@ class FollowAgent(NavAgent):
         self.replan_distance = _number(agent_id, "replan_distance", replan_distance, 0.0, 20.0)
         self.replan_interval = _number(agent_id, "replan_interval", replan_interval, 0.0, 60.0)
         self.positions: dict[str, SendPosition] = {}  # robot id -> latest broadcast position
+        self.tracks = Tracks()  # robot id -> Kalman track of its broadcasts (where it is between them)
         self.caught: dict[str, str] = {}  # prey robot -> the outcome text
         self.catches = 0  # prey this hunter caught
         self.prey_robots: set[str] = {prey} if prey else set()
@@ -111,6 +114,7 @@ class FollowAgent(NavAgent):
         p: SendPosition = msg.body
         if p.frame == "map":
             self.positions[p.robot] = p
+            self.tracks.update(p.robot, p.x, p.y, p.yaw, clock().now())
 
     def _on_caught(self, msg: Message) -> None:
         o: Outcome = msg.body
@@ -229,6 +233,9 @@ class FollowAgent(NavAgent):
             self.publish(Outcome.SERVICE, Outcome("caught", prey, text))
             self._end_chase()
             return
+        # plan for where the prey is now (its track between broadcasts), not where it last said it was
+        target = self.tracks.predict(prey, now) or target
+        d = math.hypot(target.x - me.x, target.y - me.y)
         g = self._chase_goal  # the prey's position the current goal was made from
         moved = g is None or math.hypot(target.x - g.x, target.y - g.y) > self.replan_distance
         idle = self.goal_state != "driving"

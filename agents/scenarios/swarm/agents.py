@@ -10,7 +10,9 @@ avoid, escape) and one more layer for open space (:class:`Disperse`), publishes 
 ``send_position`` every ``report_every`` seconds (2 Hz by default) and keeps every other robot's
 latest pose on a :class:`rsal.data.Board`. It measures what it receives (:mod:`.metrics`: delivery
 per sender from the broadcasts' sequence numbers, latency histogram) and publishes these figures on
-the ``swarm_stats`` service (:mod:`.messages`).
+the ``swarm_stats`` service (:mod:`.messages`). Periods (control cycle, broadcasts, the monitor's
+samples) count the process's clock (:mod:`rsal.clock`: simulated seconds under a simulator's
+clock); latency stays wall time.
 
 Agents of one host share the costly parts through the host's :class:`agents.hub.RobotHub`: one
 Fabric and one DeviceNode to find all robots, one control loop on the host's asyncio loop that runs
@@ -36,6 +38,7 @@ from agents.hub import RobotHub
 from agents.registry import agent_class
 from agents.services import Message, SendPosition
 from rsal.behaviours import Sectors, Subsumption
+from rsal.clock import clock
 from rsal.data import Board, BoardObject, Position, normalize_angle
 from rsal.msgs import RpcError
 from rsal.robot import Pioneer, RobotError
@@ -257,10 +260,10 @@ class SwarmAgent(RobotAgent):
             raise
         self.configure(self.pioneer)
         self._hub.add_robot(self.robot, self.pioneer)
-        loop = asyncio.get_running_loop()
+        now = clock().now()
         # Spread the broadcasts of a crowd started at once over the reporting period.
-        self._next_report = loop.time() + random.Random(self.id).uniform(0.0, self.report_every)
-        self._next_stats = loop.time() + self.stats_every
+        self._next_report = now + random.Random(self.id).uniform(0.0, self.report_every)
+        self._next_stats = now + self.stats_every
 
     def _join_hub(self) -> RobotHub:
         """Attach to the host's :class:`agents.hub.RobotHub` and, when ``shared``, to its
@@ -322,16 +325,15 @@ class SwarmAgent(RobotAgent):
     async def body(self) -> None:
         """``step()`` when a broadcast or a stats message is due (not every control period: the
         robot's cycle runs in the host's shared control loop)."""
-        loop = asyncio.get_running_loop()
         while True:
             await self.step()
             due = self._next_report
             if self.stats_every > 0:
                 due = min(due, self._next_stats)
-            await asyncio.sleep(max(0.0, due - loop.time()))
+            await clock().asleep_until(due)
 
     async def step(self) -> None:
-        now = asyncio.get_running_loop().time()
+        now = clock().now()
         if now >= self._next_report:
             self._next_report = max(self._next_report + self.report_every, now)
             msg = self.pose_message() if self.broadcasting else None

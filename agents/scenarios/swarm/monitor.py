@@ -18,6 +18,7 @@ from agents.registry import agent_class
 from agents.runtime import Agent
 from agents.services import Message, Outcome
 from rsal.client import Fabric
+from rsal.clock import clock
 
 from .messages import STATS_SERVICE
 from .metrics import LatencyHistogram
@@ -170,11 +171,10 @@ class SwarmMonitor(Agent):
 
     async def body(self) -> None:
         sim = await asyncio.to_thread(self._simulation)
-        loop = asyncio.get_running_loop()
         t0 = sim.latest.t
-        next_report = loop.time() + self.report_every
+        next_report = clock().now() + self.report_every
         while True:
-            started = loop.time()
+            started = clock().now()
             t = sim.latest.t
             try:
                 xy = await self.poses(sim)
@@ -187,10 +187,10 @@ class SwarmMonitor(Agent):
                 self.publish(Outcome.SERVICE, self.verdict)
                 log.info("%s: %s", self.id, self.verdict.text)
                 return
-            if loop.time() >= next_report:
+            if clock().now() >= next_report:
                 next_report += self.report_every
                 log.info("%s: %s", self.id, self.judge(t - t0).text)
-            await asyncio.sleep(max(0.0, self.sample_every - (loop.time() - started)))
+            await clock().asleep_until(started + self.sample_every)
 
     async def killed(self) -> None:
         if self.fabric is not None:
