@@ -9,21 +9,10 @@ Bases stop when their velocity commands stop (``cmd_timeout``, 0.5 s by default,
 :meth:`Fabric.hold` re-sends a held velocity command every :data:`HOLD_REFRESH` seconds from one
 thread per fabric, for callers that set a velocity once and expect it to hold. It stops with the
 process, so a dead client's robot still stops.
-
-Receivers check what they can (``docs/security-receivers.md``): an rpc is asked of every queryable
-on its key (``QueryTarget.ALL``, no consolidation) and only a reply from the Zenoh session that owns
-the device's liveliness token is taken. The owner comes from this session's own admin space
-(``@/<zid>/<mode>/token/<token key>`` lists the sessions that declared the token), the replier from
-``Reply.replier_id``; a reply from any other session is dropped and logged once per device and
-session. Where the owner cannot be known (the admin space is off, e.g. a ``--config`` file that does
-not enable it) replies are taken unchecked, as before. zenoh 1.10 tells a subscriber nothing of a
-sample's publisher (``Sample.source_info`` is empty unless the publisher sets it itself), so data
-and events are not checked on an open fabric: there the secured profile's access control decides.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import queue
 import threading
@@ -39,42 +28,11 @@ from .keys import DeviceAddr
 from .msgs import ErrorCode, RpcError, encode, parse_reply
 from .transport import TransportArgs, open_session
 
-__all__ = ["Fabric", "Dispatcher", "query_rpc", "token_owners", "HOLD_REFRESH"]
+__all__ = ["Fabric", "Dispatcher", "query_rpc", "HOLD_REFRESH"]
 
 log = logging.getLogger(__name__)
 
 HOLD_REFRESH = 0.2  # s: a held command is re-sent this often (5 Hz, well inside a base's 0.5 s cmd_timeout)
-
-
-_reported_rogues: set[tuple[str, str]] = set()  # (device, replier zid) logged once
-_rogue_lock = threading.Lock()
-
-
-def token_owners(session: zenoh.Session, addr: DeviceAddr, done: Callable[[frozenset[str] | None], None]) -> None:
-    """The ids (hex) of the Zenoh sessions that declared ``addr``'s liveliness token, as this
-    session's own admin space knows them; ``done`` gets them, or None when that cannot be known,
-    exactly once, on a Zenoh thread."""
-    zids: set[str] = set()
-    seen: list[bool] = []
-    me = str(session.zid())
-
-    def on_reply(reply) -> None:
-        if reply.ok is None or reply.replier_id is None or str(reply.replier_id.zid) != me:
-            return  # only this session's own runtime answers for its own admin space
-        try:
-            entry = json.loads(reply.ok.payload.to_bytes())
-            zids.update(z for kind in ("routers", "peers", "clients") for z in entry.get(kind, ()))
-            seen.append(True)
-        except (ValueError, AttributeError, TypeError):
-            pass
-
-    def on_done() -> None:
-        done(frozenset(zids) if seen and zids else None)
-
-    try:
-        session.get(f"@/{me}/*/token/{keys.device_key(addr)}", zenoh.handlers.Callback(on_reply, on_done), timeout=2.0)
-    except Exception:
-        done(None)
 
 
 def query_rpc(
@@ -90,61 +48,32 @@ def query_rpc(
     a Zenoh thread. The one implementation behind :meth:`Fabric.rpc_async` and the device server's
     driver requests."""
     key = keys.rpc_key(addr, op)
-    replies: list[tuple[str | None, dict | RpcError]] = []  # (replier zid, outcome) in arrival order
-    owners: list[frozenset[str] | None] = []
-    lock = threading.Lock()
-    pending = [2]  # the rpc query and the owner lookup
+    got: list = []
 
     def on_reply(reply) -> None:
-        zid = str(reply.replier_id.zid) if reply.replier_id is not None else None
+        if got:
+            return
         try:
             if reply.ok is not None:
-                out: dict | RpcError = parse_reply(reply.ok.payload.to_bytes(), key=key)
+                got.append(parse_reply(reply.ok.payload.to_bytes(), key=key))
             else:
                 parse_reply(reply.err.payload.to_bytes(), is_error=True, key=key, timeout=timeout)  # raises
-                return
         except RpcError as e:
-            out = e
-        with lock:
-            replies.append((zid, out))
+            got.append(e)
 
-    def finish() -> None:
-        with lock:
-            pending[0] -= 1
-            if pending[0]:
-                return
-        own = owners[0] if owners else None
-        for zid, out in replies:
-            if own is None or zid is None or zid in own:
-                done(out)
-                return
-            with _rogue_lock:
-                first = (key, zid) not in _reported_rogues
-                _reported_rogues.add((key, zid))
-            if first:
-                log.warning(
-                    "%s: ignored a reply from Zenoh session %s, which does not own the device's token (owner: %s)",
-                    key, zid, ", ".join(sorted(own)),
-                )  # fmt: skip
-        done(RpcError(ErrorCode.TIMEOUT, f"no reply within {timeout:g} s (is {addr} alive?)", key))
-
-    def on_owners(found: frozenset[str] | None) -> None:
-        owners.append(found)
-        finish()
+    def on_done() -> None:
+        done(got[0] if got else RpcError(ErrorCode.TIMEOUT, f"no reply within {timeout:g} s (is {addr} alive?)", key))
 
     try:
         session.get(
             key,
-            zenoh.handlers.Callback(on_reply, finish),
+            zenoh.handlers.Callback(on_reply, on_done),
             payload=encode(args or {}),
             timeout=timeout,
-            target=zenoh.QueryTarget.ALL,
-            consolidation=zenoh.ConsolidationMode.NONE,
+            target=zenoh.QueryTarget.BEST_MATCHING,
         )
     except Exception as e:
         done(RpcError(ErrorCode.UNAVAILABLE, f"cannot send the query: {e}", key))
-        return
-    token_owners(session, addr, on_owners)
 
 
 class Dispatcher:

@@ -127,9 +127,6 @@ def make_config(args: TransportArgs | None = None, *, server: bool = False) -> z
     else:
         conf = zenoh.Config()
         conf.insert_json5("scouting/multicast/enabled", "false")
-        # The session's own admin space, read-only: it tells which session owns a device's
-        # liveliness token, which rsal.client checks rpc replies against (docs/security-receivers.md).
-        conf.insert_json5("adminspace", '{"enabled": true, "permissions": {"read": true, "write": false}}')
     if a.mode or not a.config:
         conf.insert_json5("mode", json.dumps(a.mode or "peer"))
     listen = list(a.listen)
