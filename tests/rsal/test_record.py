@@ -21,6 +21,7 @@ import msgpack
 import pytest
 import zenoh
 from conftest import MAPS, SPEEDUP, Proc, free_port, rsal_cmd, wait_until
+from mcap.writer import Writer
 
 from rsal.cli import build_parser
 from rsal.errnet import run_guarded
@@ -230,7 +231,13 @@ def test_bad_files_and_flags_get_one_line_and_exit_1(tmp_path, capsys):
     text.write_text("not a recording\n")
     empty = tmp_path / "empty.mcap"
     empty.write_bytes(b"")
+    nothing = tmp_path / "nothing.mcap"  # a finished MCAP file without a sample
+    with open(nothing, "wb") as f:
+        w = Writer(f)
+        w.start(profile="rsal")
+        w.finish()
     cases = [
+        (["play", str(nothing), "--listen", f"tcp/127.0.0.1:{free_port()}"], "holds no recorded samples"),
         (["play", str(text)], "not an MCAP file"),
         (["play", str(empty)], "the file is empty"),
         (["play", str(tmp_path / "missing.mcap")], "no such file"),
