@@ -1,8 +1,9 @@
 """``rsal record`` and ``rsal play``: the command-line side of :mod:`rsal.record`.
 
-Progress goes to stderr at most once a second (one line rewritten in place on a terminal, a new
-line otherwise), a summary line at the end; SIGTERM and Ctrl-C end a recording cleanly (the file
-gets its index). See ``docs/recording.md``.
+``rsal play`` pauses and resumes with the space bar when run in a terminal. Progress goes to stderr
+at most once a second (one line rewritten in place on a terminal, a new line otherwise), a summary
+line at the end; SIGTERM and Ctrl-C end a recording cleanly (the file gets its index). See
+``docs/recording.md``.
 """
 
 from __future__ import annotations
@@ -107,6 +108,30 @@ def run_record(args: argparse.Namespace) -> int:
     return 0
 
 
+def _keyboard(player, stop: threading.Event) -> None:
+    """Space pauses and resumes the playback when stdin is a terminal (the terminal is restored
+    at exit); without a terminal there are no keys to read."""
+    if not sys.stdin.isatty():
+        return
+    import atexit
+    import select
+    import termios
+    import tty
+
+    fd = sys.stdin.fileno()
+    saved = termios.tcgetattr(fd)
+    atexit.register(termios.tcsetattr, fd, termios.TCSADRAIN, saved)
+    tty.setcbreak(fd)
+
+    def read() -> None:
+        while not stop.is_set():
+            if select.select([fd], [], [], 0.2)[0] and sys.stdin.read(1) == " ":
+                (player.resume if player.stats.paused else player.pause)()
+                _progress_line("[play] paused (space resumes)" if player.stats.paused else "[play] resumed")
+
+    threading.Thread(target=read, name="rsal-play-keys", daemon=True).start()
+
+
 def run_play(args: argparse.Namespace) -> int:
     from .player import Player, PlayOptions, Recording, check_profile, parse_remap
 
@@ -143,6 +168,7 @@ def run_play(args: argparse.Namespace) -> int:
             f"{len(player._devices)} devices; rate {args.rate:g}"
         )
         threading.Thread(target=lambda: (stop.wait(), player.stop()), daemon=True).start()
+        _keyboard(player, stop)
         t0 = time.monotonic()
         try:
             st = player.run(

@@ -180,6 +180,7 @@ class PlayStats:
     position: float = 0.0  # seconds into the recording
     duration: float = 0.0
     lag_max: float = 0.0  # s, the latest a sample went out after its time
+    paused: bool = False
 
 
 class _Device:
@@ -200,6 +201,8 @@ class Player:
         self.opts = opts or PlayOptions()
         self.stats = PlayStats()
         self._stop = threading.Event()
+        self._running = threading.Event()  # cleared while paused
+        self._running.set()
         self._devices: dict[str, _Device] = {}
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._filter = zenoh.KeyExpr(keys.template_to_keyexpr(self.opts.devices)) if self.opts.devices else None
@@ -370,13 +373,31 @@ class Player:
             if self.stats.passes == 0 and self.opts.delay > 0 and self._stop.wait(self.opts.delay):
                 return False  # the devices are up; subscribers get the delay to find them
             self._wall0 = time.monotonic()
-        if self.opts.rate <= 0:
-            return not self._stop.is_set()
-        wait = self._wall0 + (log_time - start_ns) / 1e9 / self.opts.rate - time.monotonic()
-        if wait > 0:
-            return not self._stop.wait(wait)
-        self.stats.lag_max = max(self.stats.lag_max, -wait)
-        return True
+        while True:
+            if not self._running.is_set():  # paused: the clock of the playback stops with it
+                paused_at = time.monotonic()
+                while not self._running.wait(0.05):
+                    if self._stop.is_set():
+                        return False
+                self._wall0 += time.monotonic() - paused_at
+            if self.opts.rate <= 0:
+                return not self._stop.is_set()
+            wait = self._wall0 + (log_time - start_ns) / 1e9 / self.opts.rate - time.monotonic()
+            if wait <= 0:
+                self.stats.lag_max = max(self.stats.lag_max, -wait)
+                return True
+            if self._stop.wait(min(wait, 0.05)):  # short naps: a pause takes effect at once
+                return False
+
+    def pause(self) -> None:
+        """Hold the playback (the devices stay up and answer ``describe``); :meth:`resume` goes on
+        where it stopped, with the recorded timing."""
+        self._running.clear()
+        self.stats.paused = True
+
+    def resume(self) -> None:
+        self._running.set()
+        self.stats.paused = False
 
     def close(self) -> None:
         self._queries.put(None)
