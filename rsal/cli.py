@@ -1,10 +1,10 @@
 """The ``rsal`` command line.
 
-``rsal`` itself knows the commands of the RSAL layer (``ls``, ``goto``, ``estop``, ``router``, ``secure``,
-``watch``); the other layers add theirs through the ``rsal.commands`` entry-point group (``serve`` and ``sim`` from
-``mrs_bridge``, ``demo`` from ``agents``), so this package never imports the layers above or beside
-it. Each entry point is a function ``register(subparsers)`` that adds a sub-command whose
-``func(args) -> int`` runs it.
+``rsal`` itself knows the commands of the RSAL layer (``ls``, ``goto``, ``estop``, ``record``, ``play``,
+``router``, ``secure``, ``watch``); the other layers add theirs through the ``rsal.commands``
+entry-point group (``serve`` and ``sim`` from ``mrs_bridge``, ``demo`` from ``agents``), so this package
+never imports the layers above or beside it. Each entry point is a function ``register(subparsers)``
+that adds a sub-command whose ``func(args) -> int`` runs it.
 
 Every command runs inside one safety net (:func:`rsal.errnet.run_guarded`): a failure -- a bad
 file or flag, nothing to talk to, a device that does not answer, a port in use, or a bug -- prints
@@ -254,6 +254,9 @@ def build_parser() -> argparse.ArgumentParser:
     es.add_argument("--wait", type=float, default=5.0, help="seconds to wait for the bases' answers (default 5)")
     add_transport_args(es)
     es.set_defaults(func=_cmd_estop)
+    from .record import register as register_record
+
+    register_record(sub)
     from .router import register as register_router
 
     register_router(sub)

@@ -1,0 +1,28 @@
+"""Recording and playing back the fabric: ``rsal record`` and ``rsal play`` (issue: Player's
+``writelog``/``readlog``, ROS 2's ``rosbag2``), in MCAP files (https://mcap.dev).
+
+:mod:`~rsal.record.format` (the MCAP layout: channels, metadata, times), :mod:`~rsal.record.recorder`
+(:class:`Recorder`: subscriptions, one writer thread), :mod:`~rsal.record.player` (:class:`Recording`,
+a sequential reader that survives a truncated file; :class:`Player`: devices re-created, samples
+re-published with their timing), :mod:`~rsal.record.cli` (the two commands). ``docs/recording.md``
+describes the commands and the file layout.
+"""
+
+from __future__ import annotations
+
+from .cli import register
+from .format import RecordingError
+from .player import Player, PlayOptions, Recording, Sample
+from .recorder import Recorder, RecordOptions, RecordStats
+
+__all__ = [
+    "Player",
+    "PlayOptions",
+    "Recorder",
+    "RecordOptions",
+    "RecordStats",
+    "Recording",
+    "RecordingError",
+    "Sample",
+    "register",
+]
