@@ -8,7 +8,8 @@ for the genuine one is the deadline for the forged one (no fixed sleep).
 
 - robot host r1 cannot drive r2, cannot declare r2's tokens, cannot publish r2's laser, cannot
   answer r2's rpc; it serves and drives its own;
-- agent host A publishes and announces only its own agent;
+- agent host A publishes and announces only its own agent: no outcome for an agent it does not run
+  (nor from a robot host), no answer to the rpc of a robot it drives;
 - the viewer reads data and tokens but cannot put a command;
 - a revoked identity cannot connect; a current one can.
 
@@ -24,6 +25,9 @@ import threading
 import pytest
 import zenoh
 
+from rsal.client import query_rpc
+from rsal.keys import parse_device
+from rsal.msgs import decode_map, ok_reply
 from rsal.secure import Fleet, Identity, SecureError
 from rsal.transport import TransportArgs, open_session
 from tests.conftest import Proc, free_port, rsal_cmd, wait_until
@@ -40,7 +44,7 @@ def fleet(tmp_path_factory):
     f.init("127.0.0.1", free_port())
     f.add(Identity("r1", "robot"))
     f.add(Identity("r2", "robot"))
-    f.add(Identity("hostA", "agents", agents=["hunter-1"], services=["send_position"], robots=["r1"]))
+    f.add(Identity("hostA", "agents", agents=["hunter-1"], services=["send_position", "outcome"], robots=["r1"]))
     f.add(Identity("op", "operator"))
     f.add(Identity("view", "viewer"))
     gone = f.add(Identity("gone", "robot")).read_text()
@@ -145,6 +149,41 @@ def test_an_agent_host_speaks_and_lives_only_as_its_own_agents(fleet):
     finally:
         forged.undeclare()
         own.undeclare()
+
+
+def test_a_fleet_member_cannot_forge_an_outcome_for_an_agent_it_does_not_run(fleet):
+    _, s, _ = fleet
+    # the agent host speaks the outcome service for its own agent only
+    inbox = Inbox(s["op"], "svc/outcome/*")
+    forged_never_arrives(inbox, s["hostA"], "svc/outcome/hunter-2", s["hostA"], "svc/outcome/hunter-1", "A as hunter-2")
+    assert {k for k, p in inbox.got} == {"svc/outcome/hunter-1"}
+    # a robot host speaks for no agent at all, not even the one that drives it
+    inbox = Inbox(s["op"], "svc/outcome/*")
+    forged_never_arrives(inbox, s["r1"], "svc/outcome/hunter-1", s["hostA"], "svc/outcome/hunter-1", "r1 as hunter-1")
+
+
+def test_a_fleet_member_cannot_answer_another_robots_rpc(fleet):
+    """Robot host r2 and agent host A (which may call r1's rpcs) both serve r1's ``describe``: only
+    r1's answers reach the operator, through Zenoh and through the project's rpc client."""
+    _, s, _ = fleet
+    key = "rsal/r1/position2d/0/rpc/describe"
+    real = s["r1"].declare_queryable(key, lambda q: q.reply(q.key_expr, ok_reply(who="r1")))
+    token = s["r1"].liveliness().declare_token("rsal/r1/position2d/0")
+    rogues = [s[n].declare_queryable(key, lambda q, n=n: q.reply(q.key_expr, ok_reply(who=n))) for n in ("r2", "hostA")]
+    try:
+        wait_until(lambda: _tokens(s["op"], "rsal/r1/**") == ["rsal/r1/position2d/0"], 20, "r1's token at the operator")
+        for _ in range(5):
+            answers = [decode_map(r.ok.payload.to_bytes())["who"] for r in s["op"].get(key, timeout=3) if r.ok]
+            assert answers == ["r1"], f"r1's describe answered by {answers}"
+        # the agent host's own rpc client (the one agents use) gets r1's answer too
+        for asker in ("op", "hostA"):
+            got: list = []
+            query_rpc(s[asker], parse_device("r1:position2d:0"), "describe", None, 3.0, got.append)
+            wait_until(lambda got=got: got, 10, f"{asker}'s describe of r1")
+            assert isinstance(got[0], dict) and got[0]["who"] == "r1", f"{asker} got {got[0]!r}"
+    finally:
+        for x in (real, token, *rogues):
+            x.undeclare()
 
 
 def test_the_viewer_reads_but_cannot_command(fleet):
