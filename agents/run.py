@@ -119,8 +119,11 @@ class Runner:
         # Zenoh settings every process of the run gets: a --config file (e.g. the secured profile's
         # fleet.json5, which names the endpoints itself) and --cfg entries (e.g. a shorter lease).
         self.zenoh_flags: list[str] = ["--config", args.config] if getattr(args, "config", None) else []
-        for item in getattr(args, "cfg", None) or []:
-            self.zenoh_flags += ["--cfg", item]
+        cfg_flags = [f for item in getattr(args, "cfg", None) or [] for f in ("--cfg", item)]
+        self.zenoh_flags += cfg_flags
+        # the agent hosts' own identity in the secured profile (the runner itself is the operator)
+        agents_config = getattr(args, "agents_config", None)
+        self.agent_flags = ["--config", agents_config, *cfg_flags] if agents_config else self.zenoh_flags
         if args.connect:
             self.endpoint, self.sim_flag = args.connect, "--connect"
         elif getattr(args, "config", None) and not args.listen:
@@ -221,13 +224,13 @@ class Runner:
             argv += ["--host", group, "--report-every", f"{self.args.host_report:g}"]
             for item in self.args.set or []:
                 argv += ["--set", item]
-            argv += self._member_flags()
+            argv += self._member_flags(self.agent_flags)
             ids = ", ".join(a.id for a in entries)
             self._start(group, "host", argv, f"agent host with {len(entries)} agent(s): {ids}")
 
-    def _member_flags(self) -> list[str]:
+    def _member_flags(self, zenoh_flags: list[str] | None = None) -> list[str]:
         """Transport flags of the servers and agent hosts: they join the fabric's endpoint."""
-        return (["--connect", self.endpoint] if self.endpoint else []) + self.zenoh_flags
+        return (["--connect", self.endpoint] if self.endpoint else []) + (zenoh_flags or self.zenoh_flags)
 
     def _stop_children(self) -> None:
         """SIGTERM to the agent hosts, then the servers, then the simulator, each group with its
@@ -471,6 +474,12 @@ def run_scenario(args: argparse.Namespace) -> int:
     except ScenarioError as e:
         _err(str(e))
         return 2
+    agents_config = getattr(args, "agents_config", None)
+    if agents_config and not os.path.isfile(agents_config):
+        _err(
+            f"--agents-config {agents_config}: no such file (give an agent host's member file, rsal secure add-agents)"
+        )
+        return 2
     return Runner(sc, app, args, _Out()).run()
 
 
@@ -507,6 +516,12 @@ def register(sub) -> None:
         "--listen", metavar="ENDPOINT", help="the fabric's endpoint (default: a free port tcp/127.0.0.1:PORT)"
     )
     p.add_argument("--config", metavar="FILE", help="a Zenoh JSON5 configuration for every process of the run")
+    p.add_argument(
+        "--agents-config",
+        metavar="FILE",
+        help="the agent hosts' own Zenoh configuration (default: --config); in a secured fleet the runner "
+        "runs as an operator and its agents as their agent host's identity (docs/security.md)",
+    )
     p.add_argument(
         "--cfg",
         action="append",

@@ -13,8 +13,10 @@ kind              may (everything else is refused: ``default_permission: "deny"`
 ``robot``         everything under its own nodes ``rsal/<node>/**`` (tokens, data, events,
                   commands, rpcs served and called); receive any base's emergency stop
 ``agents``        put ``svc/<service>/<agent>`` and declare ``agents/<agent>`` for its own
-                  agents and services; read those services and agents' tokens; drive the
-                  robots it is given (``--robots``: commands, rpcs, data)
+                  agents and services; read those services and agents' tokens; answer
+                  ``hello`` for its own agents and ask everyone's; drive the robots it is
+                  given (``--robots``: commands, rpcs, data) and, with robots, read their
+                  true poses from the simulation (its token, ``describe``, ``get_pose``)
 ``operator``      read every device, service and agent; command and call every device (start
                   runs, drive robots, emergency stop and release); no tokens, no services
 ``viewer``        read devices' data, events, tokens and ``describe``; press the emergency stop
@@ -57,6 +59,9 @@ ALL_MESSAGES = [
     "liveliness_token", "liveliness_query", "declare_liveliness_subscriber",
 ]  # fmt: skip
 CLOCK = "rsal/*/simulation/*/data"
+SIMULATION = "rsal/*/simulation/*"  # the simulation device's token
+SIM_READS = ("describe", "get_pose")  # what an agent host may ask the simulation (reads only)
+HELLO = "hello"  # the agents' discovery service (agents.services), answered per agent
 
 
 class SecureError(RsalError, ValueError):
@@ -132,11 +137,20 @@ def _rules_of(ident: Identity) -> list[dict]:
             rules += _read(f"{n}-svc", [f"svc/{s}/**" for s in ident.services])
         rules.append(_rule(f"{n}-token", "ingress", ["liveliness_token"], [f"agents/{a}" for a in ident.agents]))
         rules += _tokens(f"{n}-agents", ["agents/**"])
+        # ``hello`` (agent discovery): answer for its own agents only, ask every agent (the
+        # question ``svc/hello/*`` names nobody, so it reaches every agent host)
+        hello = [f"svc/{HELLO}/{a}" for a in ident.agents]
+        rules.append(_rule(f"{n}-hello-serve", "ingress", ["declare_queryable", "reply"], hello))
+        rules.append(_rule(f"{n}-hello-asked", "egress", ["query"], [f"svc/{HELLO}/*"]))
+        rules += _call(f"{n}-hello", [f"svc/{HELLO}/*"])
         if ident.robots:
             mine = [f"rsal/{r}/**" for r in ident.robots]
             rules += _read(f"{n}-robots", mine) + _tokens(f"{n}-robots", mine)
             rules.append(_rule(f"{n}-drive", "ingress", ["put"], [f"rsal/{r}/*/*/cmd" for r in ident.robots]))
             rules += _call(f"{n}-rpc", [f"rsal/{r}/*/*/rpc/*" for r in ident.robots])
+            # a simulated robot's agent anchors its odometry at the robot's true start pose
+            rules += _tokens(f"{n}-sim", [SIMULATION])
+            rules += _call(f"{n}-sim", [f"{SIMULATION}/rpc/{op}" for op in SIM_READS])
     elif ident.kind == "operator":
         everything = ["rsal/**", "svc/**", "agents/**"]
         rules += _read(f"{n}-all", everything) + _tokens(f"{n}-all", everything)

@@ -34,7 +34,7 @@ from tests.conftest import Proc, free_port, rsal_cmd, wait_until
 
 pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is needed to make certificates")
 
-MEMBERS = ("r1", "r2", "hostA", "op", "view")
+MEMBERS = ("r1", "r2", "hostA", "hostB", "op", "view")
 
 
 @pytest.fixture(scope="module")
@@ -45,6 +45,7 @@ def fleet(tmp_path_factory):
     f.add(Identity("r1", "robot"))
     f.add(Identity("r2", "robot"))
     f.add(Identity("hostA", "agents", agents=["hunter-1"], services=["send_position", "outcome"], robots=["r1"]))
+    f.add(Identity("hostB", "agents", agents=["prey-1"], services=["send_position"]))
     f.add(Identity("op", "operator"))
     f.add(Identity("view", "viewer"))
     gone = f.add(Identity("gone", "robot")).read_text()
@@ -184,6 +185,24 @@ def test_a_fleet_member_cannot_answer_another_robots_rpc(fleet):
     finally:
         for x in (real, token, *rogues):
             x.undeclare()
+
+
+def test_an_agent_host_answers_hello_only_for_its_own_agents(fleet):
+    _, s, _ = fleet
+    serve = [
+        s["hostA"].declare_queryable(f"svc/hello/{a}", lambda q, a=a: q.reply(f"svc/hello/{a}", a.encode()))
+        for a in ("hunter-2", "hunter-1")  # hunter-2 (not hostA's) declared first
+    ]
+    try:
+
+        def answers() -> list[bytes]:
+            return sorted(r.ok.payload.to_bytes() for r in s["hostB"].get("svc/hello/*", timeout=3) if r.ok)
+
+        assert wait_until(lambda: answers() or None, 20, "hunter-1's hello at agent host B") == [b"hunter-1"]
+        assert answers() == [b"hunter-1"]
+    finally:
+        for q in serve:
+            q.undeclare()
 
 
 def test_the_viewer_reads_but_cannot_command(fleet):
