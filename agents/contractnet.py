@@ -13,7 +13,7 @@ missing or mistyped field is dropped (``dropped`` counts them), a message of an 
 conversation is ignored, and a proposal that arrives after the deadline is answered with
 ``reject-proposal`` and never chosen.
 
-Receivers check what they can (``docs/security-receivers.md``): a participant accepts an award
+Receivers check what they can (``docs/security.md``, "Open fabric"): a participant accepts an award
 (``accept-proposal``) only from the agent whose ``cfp`` it proposed to in that conversation, so an
 award without a prior proposal, or from anyone else, is ignored; a participant given ``initiators``
 answers only the calls of those agents (a ``cfp`` from any other sender is ignored), so a forged

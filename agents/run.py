@@ -15,7 +15,7 @@ session, PIDs kept and printed, output relayed):
 says otherwise. The runner's own Zenoh session subscribes ``svc/outcome/*`` and the agent tokens
 ``agents/*``; it counts outcomes only from the agents it launched (the application's agent ids): an
 outcome from any other sender -- on an open fabric anyone can put one -- is ignored, and each such
-sender is reported once (``docs/security-receivers.md``). It prints every outcome as it arrives and
+sender is reported once (``docs/security.md``, "Open fabric"). It prints every outcome as it arrives and
 a progress line every few seconds, and relays
 its children's output with their name in front. The run ends with success (exit 0) when the end
 condition holds — ``count`` distinct subjects of ok ``event`` outcomes, or ``duration`` seconds

@@ -8,7 +8,7 @@ receives the message, filtered on the subscriber side. Every message carries ``s
 body, as one msgpack map whose schema is defined here and validated on decode (STYLE rule 4): a
 malformed sample is dropped with a rate-limited warning and never reaches an agent.
 
-Receivers check what they can (``docs/security-receivers.md``): a message whose envelope ``sender``
+Receivers check what they can (``docs/security.md``, "Open fabric"): a message whose envelope ``sender``
 is not the sender chunk of its key (``svc/<service>/<sender>``) is a forgery on an open fabric -- an
 agent publishes only under its own id -- so it is dropped, counted in :attr:`Services.forged` (and in
 ``dropped``) and reported by one rate-limited warning that names the key and the claimed sender.

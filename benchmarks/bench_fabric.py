@@ -22,7 +22,7 @@ verdict compares the best runs. ``paired_median_ratio`` is the median over round
 within one round (the two runs seconds apart), a second view of the same figure on a machine whose
 speed drifts between rounds.
 
-Targets (issue 3): fabric throughput >= 80 % of raw, added p99 latency < 2 ms.
+Targets: fabric throughput >= 80 % of raw, added p99 latency < 2 ms.
 Output: one parseable line per figure, ``bench=fabric key=value ...``, and a verdict line.
 Usage: ``python benchmarks/bench_fabric.py [--seconds 5] [--rate 200] [--quick]``
 """

@@ -4,7 +4,7 @@
 for r0 on ``maps/floor.world`` with two other Pioneers moving around the middle of each route
 (obstacles not on the map), AMCL + Wavefront + each of VFH, ND, SND exactly as ``rsal sim --nav``
 configures them (:func:`mrs_bridge.rigs.stacksim.goal_trials`). Reports reached / collided /
-invalid / timed out, mean time and the worst localization error. Target (issue): >= 95 % reached
+invalid / timed out, mean time and the worst localization error. Target: >= 95 % reached
 with no collision for each planner.
 
 **Capacity** (``--robots``, default 10,25,50,100): N Pioneers with an URG laser in the 128 m arena,

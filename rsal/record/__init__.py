@@ -1,5 +1,5 @@
-"""Recording and playing back the fabric: ``rsal record`` and ``rsal play`` (issue: Player's
-``writelog``/``readlog``, ROS 2's ``rosbag2``), in MCAP files (https://mcap.dev).
+"""Recording and playing back the fabric: ``rsal record`` and ``rsal play`` (what Player's
+``writelog``/``readlog`` and ROS 2's ``rosbag2`` do), in MCAP files (https://mcap.dev).
 
 :mod:`~rsal.record.format` (the MCAP layout: channels, metadata, times), :mod:`~rsal.record.recorder`
 (:class:`Recorder`: subscriptions, one writer thread), :mod:`~rsal.record.player` (:class:`Recording`,

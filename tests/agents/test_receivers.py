@@ -1,9 +1,9 @@
-"""Receivers check what they can on an open fabric (docs/security-receivers.md): forged agent
+"""Receivers check what they can on an open fabric (docs/security.md, "Open fabric"): forged agent
 messages put by a stock Zenoh session (no project code on the sending side) change nothing.
 
 (a) A service message whose envelope ``sender`` is not the key's sender chunk is dropped, counted
 as forged and reported by one warning naming the key and the claimed sender; genuine messages
-after it still arrive. (b) The contract net's "ghost" forgery of issue 14: a forged call for
+after it still arrive. (b) The contract net's "ghost" forgery: a forged call for
 proposals for an unknown prey and a forged award do not make a participant chase anything.
 """
 

@@ -18,7 +18,7 @@ bids its straight-line distance to the prey, a busy one refuses, so the nearest 
 ("nearest first"). The winner chases until the prey is caught, by anyone, and then answers
 ``inform-done``; nobody chases a caught prey. A hunter answers only the auctioneer's calls and bids
 only for prey it knows (offered ``prey`` on ``hello`` and broadcast a position), so a forged call
-for an unknown prey (issue 14's "ghost") commits nobody (``docs/security-receivers.md``).
+for an unknown prey (a "ghost") commits nobody (``docs/security.md``, "Open fabric").
 """
 
 from __future__ import annotations
