@@ -10,7 +10,9 @@ the body of a ``GD``/``MD`` scan.
 The driver under test opens :attr:`HokuyoEmulator.path` (the pty's slave side) as its serial port;
 the emulator answers on the master side from its own thread: ``SCIP2.0``, ``VV``, ``PP``, ``II``,
 ``BM``, ``QT``, ``RS``, ``GD`` and ``MD`` (scans at the model's rate), anything else with the
-"undefined command" status ``0E``. The scene is a round room: every reading is ``room_mm`` except
+"undefined command" status ``0E``. ``MD`` honours its scan interval (scans skipped between two
+sent) and its number of scans (the echo's last two digits count down the scans left; ``00``:
+endless). The scene is a round room: every reading is ``room_mm`` except
 step ``amin + 10``, which answers the error code 1 (no echo). Faults on demand: ``mode =
 "silent"`` (reads and never answers), ``"garbage"`` (noise bytes between scans), ``"badsum"`` (every
 other scan with a wrong check character). ``commands`` records every command line received.
@@ -112,6 +114,8 @@ class HokuyoEmulator:
         self.mode = "normal"
         self.laser_on = False
         self.md: tuple[bytes, int, int, int] | None = None  # echo, start, end, cluster
+        self.md_left = 0  # scans still to send (0: endless)
+        self.md_skip = 0  # scans skipped between two sent (the interval digit)
         self.commands: list[bytes] = []
         self.scans_sent = 0
         self._stop = threading.Event()
@@ -209,12 +213,13 @@ class HokuyoEmulator:
                 self.laser_on = True
                 self._send(answer(cmd, STATUS["ok"]))
                 self.md = (cmd, *req)
+                self.md_skip, self.md_left = int(cmd[12:13]), int(cmd[13:15])
         else:
             self._send(answer(cmd, STATUS["undefined"]))
 
     def _run(self) -> None:
         buf = b""
-        period = 60.0 / self.pp.scan
+        rev = 60.0 / self.pp.scan  # s per revolution
         next_scan = time.monotonic()
         while not self._stop.is_set():
             r, _, _ = select.select([self.master], [], [], 0.005)
@@ -235,8 +240,12 @@ class HokuyoEmulator:
             with self._lock:
                 if self.md is None or self.mode == "silent" or now < next_scan:
                     continue
+                period = rev * (1 + self.md_skip)
                 next_scan = max(next_scan + period, now - period)
                 echo, start, end, cluster = self.md
+                if self.md_left:  # a counted MD: the echo's last two digits count the scans left
+                    self.md_left -= 1
+                    echo = echo[:13] + b"%02d" % self.md_left
                 bad = self.mode == "badsum" and self.scans_sent % 2 == 1
                 if self.mode == "garbage":
                     self._send(bytes(np.random.default_rng(self.scans_sent).integers(0, 256, 40, dtype=np.uint8)))
@@ -244,6 +253,8 @@ class HokuyoEmulator:
                 # an endless MD (scan count 00) echoes its command unchanged with every scan
                 self._send(answer(echo, STATUS["scan"], self._scan_body(start, end, cluster, bad=bad)))
                 self.scans_sent += 1
+                if echo[13:15] == b"00" and self.md[0][13:15] != b"00":  # the last counted scan sent
+                    self.md = None
 
     def set_mode(self, mode: str) -> None:
         with self._lock:

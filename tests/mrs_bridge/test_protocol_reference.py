@@ -7,6 +7,7 @@ the pseudo-terminal. The emulators (p2os_emulator.py, hokuyo_emulator.py) import
 
 from __future__ import annotations
 
+import ast
 import os
 import select
 import time
@@ -14,7 +15,7 @@ import tty
 
 import pytest
 from bridge_helpers import LiveServer
-from conftest import free_port, wait_until
+from conftest import ROOT, free_port, wait_until
 from hokuyo_emulator import HokuyoEmulator, answer, scan_block
 from p2os_emulator import PioneerEmulator, SipState, encode_sip, frame
 
@@ -22,6 +23,15 @@ import mrs_bridge.drivers.p2os  # noqa: F401  (registers the driver)
 from mrs_bridge.driver import DRIVERS
 from mrs_bridge.hw.p2os import decode_sip, gripper_state
 from mrs_bridge.hw.scip import decode_scan, parse_fields, parse_frame, status_text
+
+
+@pytest.mark.parametrize("name", ["p2os_emulator.py", "hokuyo_emulator.py"])
+def test_the_emulators_import_nothing_of_the_project(name):
+    tree = ast.parse((ROOT / "tests" / "mrs_bridge" / name).read_text())
+    imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    imported |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert not {m for m in imported if m.split(".")[0] in ("mrs_bridge", "rsal", "simulator", "agents")}
+
 
 # ---------------------------------------------------------------------------- P2OS standard SIP
 # A P2DX at counters (1000, 2000), heading 1024 (a quarter turn), left wheel -100, right wheel
@@ -281,3 +291,31 @@ def test_the_driver_codec_reads_the_emulators_scan_and_status_meanings(urg):
     assert status_text(b"BM", b"02") == "the laser was already on"
     assert status_text(b"MD", b"0E") == "undefined command (2)"
     assert status_text(b"MD", b"55") == "hardware trouble (laser, motor ...)"
+
+
+def test_a_counted_md_counts_its_scans_down_in_the_echo_and_stops(urg):
+    fd = os.open(urg.path, os.O_RDWR | os.O_NOCTTY)
+    try:
+        tty.setraw(fd)
+        os.write(fd, b"MD0044004600003\n")  # steps 44..46, cluster 00 (= 1), interval 0, 3 scans
+        out = b""
+        deadline = time.monotonic() + 5.0
+        while out.count(b"\n\n") < 4:
+            assert time.monotonic() < deadline, f"an answer and three scans expected: {out!r}"
+            r, _, _ = select.select([fd], [], [], 0.1)
+            if r:
+                out += os.read(fd, 4096)
+    finally:
+        os.close(fd)
+    blocks = out.split(b"\n\n")
+    assert blocks[0] == b"MD0044004600003\n00P"  # accepted, no data
+    frames = [parse_frame(b) for b in blocks[1:4]]
+    assert [(f.echo, f.status) for f in frames] == [
+        (b"MD0044004600002", b"99"),  # the scans left after this one
+        (b"MD0044004600001", b"99"),
+        (b"MD0044004600000", b"99"),
+    ]
+    assert all(decode_scan(f)[1].tolist() == [1500, 1500, 1500] for f in frames)
+    wait_until(lambda: urg.md is None, 2, "the counted MD to end")
+    scans = urg.scans_sent
+    assert _converse(urg, b"QT") == b"QT\n00P\n\n" and urg.scans_sent == scans
