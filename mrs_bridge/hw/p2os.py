@@ -55,8 +55,11 @@ offset bytes name          meaning
 
 Everything from TIMER on is optional (older firmwares end after the sonars).
 
-The Pioneer gripper (Pioneer 2 gripper manual; read the same way by Player's ``p2os`` driver, the
-driver of the thesis): the **gripper state byte** (TIMER high byte, :data:`GRIP_BITS`):
+The Pioneer gripper. The operations manuals name the bytes but not their gripper bits; the bit
+table is the one Player's ``p2os`` driver decodes (``sip.cc``, the standard SIP's gripper and lift
+state; Player was the thesis's driver), read for its meaning, and the break-beam bits are those
+ARIA's ``ArGripper`` reads from DIGIN for a gripper on the user I/O port. The **gripper state
+byte** (TIMER high byte, :data:`GRIP_BITS`):
 
 ==== ===== ============================================================================
 bit  mask  meaning
@@ -73,8 +76,9 @@ and the **break beams and paddle contacts in DIGIN** (:data:`DIGIN_BITS`): bit 2
 break beam broken, bit 3 (0x08) inner break beam broken, bit 4 (0x10) left and bit 5 (0x20) right
 paddle contact, active low (0 = touching). ARIA's ``ArGripper`` reads a different bit table from
 the same byte for the older "general I/O" gripper wiring (switch levels, active low); this codec
-follows the table above. Gripper commands (GRIPPER, 33): 1 open, 2 close, 3 stop paddles, 4 lift
-up, 5 lift down, 6 stop lift.
+follows the table above; ARCOS names the TIMER's first byte GRIP_STATE, which no client reads
+here. Gripper commands (GRIPPER, 33; the same numbers in ARIA's ``ArGripperCommands``): 1 open,
+2 close, 3 stop paddles, 4 lift up, 5 lift down, 6 stop lift.
 
 The robot model table (:data:`MODELS`: conversion factors, sonar poses, limits) and the odometry
 that integrates the wrapping counters (:class:`Odometry`) are pure computations on SIPs and live
@@ -120,7 +124,7 @@ PULSE, OPEN, CLOSE = 0, 1, 2
 ENABLE, VEL, RVEL, SONAR, DIGOUT, GRIPPER = 4, 11, 21, 28, 30, 33
 ARG_INT, ARG_NINT, ARG_STR = 0x3B, 0x1B, 0x2B
 
-# GRIPPER command arguments (Pioneer gripper manual)
+# GRIPPER command arguments (module docstring)
 GRIP_OPEN, GRIP_CLOSE, GRIP_STOP, LIFT_UP, LIFT_DOWN, LIFT_STOP = 1, 2, 3, 4, 5, 6
 GRIPPER_ARGS = {"open": GRIP_OPEN, "close": GRIP_CLOSE, "stop": GRIP_STOP, "up": LIFT_UP, "down": LIFT_DOWN}
 

@@ -4,10 +4,11 @@ Written from the manuals, independently of the driver: nothing here is imported 
 ``mrs_bridge``. The packet layout is this module's own tables (:data:`SIP_HEAD`, :data:`SIP_TAIL`,
 :data:`GRIP`, :data:`DIGIN`), taken from the "Pioneer 2 / PeopleBot Operations Manual" chapter
 "P2OS", section "Server Information Packets" (standard SIP), the "Pioneer 3 Operations Manual"
-chapter "ARCOS", section "Standard SIP" (BATTERYX10, CHARGESTATE), and the Pioneer 2 gripper
-manual (the gripper state byte in the TIMER high byte, break beams and paddle contacts in DIGIN, the
-GRIPPER command's arguments). :func:`encode_sip` turns a :class:`SipState` (raw units) into a
-payload; :func:`frame` frames it (header, count, payload, checksum).
+chapter "ARCOS", section "Standard SIP" (BATTERYX10, CHARGESTATE); the gripper's bits, which the
+manuals leave out, as Player's ``p2os`` decodes them (the gripper state byte in the TIMER high byte)
+and ARIA's ``ArGripper`` reads its break beams from DIGIN (read for their meaning, not copied).
+:func:`encode_sip` turns a :class:`SipState` (raw units) into a payload; :func:`frame` frames it
+(header, count, payload, checksum).
 
 :class:`PioneerEmulator` opens ``os.openpty()``; the driver opens the slave side by its path
 (:attr:`PioneerEmulator.path`) like a serial port. A thread answers the P2OS sync handshake
