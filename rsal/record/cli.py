@@ -158,6 +158,7 @@ def run_play(args: argparse.Namespace) -> int:
         commands=args.commands,
         services=args.services,
         control=None if args.control == "" else args.control,
+        paused=args.paused,
     )
     stop = threading.Event()
     _stop_on_sigterm(stop)
@@ -236,6 +237,11 @@ def register(sub) -> None:
     p.add_argument("--devices", metavar="TEMPLATE", help="play only these devices, e.g. 'r0:*:*'")
     p.add_argument("--commands", action="store_true", help="also publish recorded commands (they move live robots)")
     p.add_argument("--services", action="store_true", help="also publish recorded agent service messages")
+    p.add_argument(
+        "--paused",
+        action="store_true",
+        help="start paused: the devices come up, the samples wait for the space bar or the resume rpc",
+    )
     p.add_argument(
         "--control",
         default="play",

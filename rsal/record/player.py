@@ -72,6 +72,7 @@ class PlayOptions:
     devices: str | None = None  # template of the devices to play
     delay: float = 0.0  # s to wait before the first sample (subscribers connect meanwhile)
     control: str | None = None  # node of the control device rsal/<control>/player/0 (None: none)
+    paused: bool = False  # start paused: the devices come up, the samples wait for resume()
     commands: bool = False  # also publish recorded commands (they would move live robots)
     services: bool = False  # also publish recorded agent service messages
 
@@ -117,6 +118,8 @@ class Player:
         self._seek_to: float | None = None
         self._delayed = False  # opts.delay is waited once, before the first sample
         self._control = None
+        if self.opts.paused:
+            self.pause()
         self._answerer = threading.Thread(target=self._answer_queries, name="rsal-play-rpc", daemon=True)
         self._answerer.start()
 
