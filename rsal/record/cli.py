@@ -165,12 +165,14 @@ def run_play(args: argparse.Namespace) -> int:
     with open_session(TransportArgs.from_namespace(args)) as session:
         player = Player(session, rec, opts)
         n = player.prepare()
+        resume = "space" + (f" or rsal/{opts.control}/player/0/rpc/resume" if opts.control else "")
         notes = [x for x in (check_profile(rec), rec.skipped) if x]
         if notes:  # one line for whatever was not read as recorded
             print(f"rsal play: {'; '.join(notes)}", file=sys.stderr, flush=True)
         _progress_line(
             f"[play] {rec.path}: {n} samples, {player.stats.duration:.1f} s, "
             f"{len(player._devices)} devices; rate {args.rate:g}"
+            + (f"; paused (resume: {resume})" if args.paused else "")
         )
         threading.Thread(target=lambda: (stop.wait(), player.stop()), daemon=True).start()
         _keyboard(player, stop)
