@@ -35,6 +35,7 @@ import zenoh
 
 from .. import keys
 from ..msgs import ErrorCode, error_reply, ok_reply
+from ..ownership import DeviceToken
 from .format import RecordingError
 from .reading import Recording, Sample
 from .reading import alive as _alive
@@ -190,7 +191,7 @@ class Player:
                 dev.queryable = self.session.declare_queryable(
                     f"{self._map(token_key)}/rpc/*", lambda q, d=dev: self._queries.put((d, q))
                 )
-            dev.token = self.session.liveliness().declare_token(self._map(token_key))
+            dev.token = DeviceToken(self.session, self._map(token_key))
             self.stats.devices.add(token_key)
         elif not alive and dev.token is not None:
             dev.token.undeclare()
@@ -376,7 +377,7 @@ class Player:
             protocol=keys.PROTOCOL_VERSION,
         )
         q = self.session.declare_queryable(f"{base}/rpc/*", lambda query: self._queries.put((None, query)))
-        self._control = (base, q, self.session.liveliness().declare_token(base))
+        self._control = (base, q, DeviceToken(self.session, base))
 
     def _answer_control(self, query) -> None:
         base = self._control[0]
