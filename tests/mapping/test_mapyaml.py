@@ -1,0 +1,132 @@
+"""The map_server map format (rsal.mapping.mapyaml): write/read round trip, the documented pixel
+interpretation (thresholds, negate, trinary/scale/raw), and one-line errors for bad files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from rsal.mapping.mapyaml import MapFileError, read_map, write_map
+
+
+def _grid(h: int = 30, w: int = 40) -> np.ndarray:
+    rng = np.random.default_rng(3)
+    occ = rng.choice([-1.0, 0.0, 1.0], size=(h, w), p=[0.2, 0.6, 0.2])
+    occ[0, :] = 1.0
+    return occ
+
+
+def test_write_then_read_is_the_same_map(tmp_path):
+    occ = _grid()
+    png, yml = write_map(tmp_path / "m", occ, 0.05, (-1.25, 2.5))
+    assert png == tmp_path / "m.png" and yml == tmp_path / "m.yaml"
+    m = read_map(yml)
+    np.testing.assert_array_equal(m.occupancy, occ)
+    assert (m.width, m.height, m.resolution, m.origin) == (40, 30, 0.05, (-1.25, 2.5, 0.0))
+    assert m.mode == "trinary" and not m.negate and m.image == png
+    # Player's convention: rows from the bottom, -1 free / 0 unknown / +1 occupied
+    cells = m.cells()
+    assert cells[-1].tolist() == [1] * 40  # the image's top row is the last row
+    np.testing.assert_array_equal(cells[::-1], np.where(occ > 0, 1, np.where(occ == 0, -1, 0)))
+
+
+def test_written_files_are_what_map_saver_writes(tmp_path):
+    occ = np.array([[1.0, 0.0, -1.0, 0.9, 0.1, 0.5]])
+    png, yml = write_map(tmp_path / "out.yaml", occ, 0.1, (0.0, 0.0, 0.0))
+    assert png.name == "out.png"
+    px = np.asarray(Image.open(png))
+    assert px.dtype == np.uint8 and px.tolist() == [[0, 254, 205, 0, 254, 205]]
+    text = yml.read_text()
+    for line in ("image: out.png", "resolution: 0.1", "origin: [0.0, 0.0, 0.0]", "negate: 0",
+                 "occupied_thresh: 0.65", "free_thresh: 0.196", "mode: trinary"):  # fmt: skip
+        assert line in text.splitlines()
+
+
+def _yaml(tmp_path: Path, pixels, body: str, mode: str = "L") -> Path:
+    Image.fromarray(np.asarray(pixels, dtype=np.uint8), mode=mode).save(tmp_path / "img.png")
+    p = tmp_path / "map.yaml"
+    p.write_text("image: img.png\nresolution: 0.5\norigin: [1, 2, 0]\n" + body)
+    return p
+
+
+def test_trinary_thresholds_and_negate(tmp_path):
+    # p = (255 - x) / 255: x=0 -> 1.0, 100 -> 0.608, 200 -> 0.216, 250 -> 0.0196
+    px = [[0, 100, 200, 250]]
+    m = read_map(_yaml(tmp_path, px, "occupied_thresh: 0.6\nfree_thresh: 0.2\nnegate: 0\n"))
+    assert m.occupancy.tolist() == [[1.0, 1.0, -1.0, 0.0]]
+    m = read_map(_yaml(tmp_path, px, "occupied_thresh: 0.6\nfree_thresh: 0.2\nnegate: 1\n"))
+    assert m.occupancy.tolist() == [[0.0, -1.0, 1.0, 1.0]]  # p = x / 255
+    assert m.origin == (1.0, 2.0, 0.0) and m.resolution == 0.5
+
+
+def test_scale_mode_grades_between_thresholds_and_alpha_is_unknown(tmp_path):
+    rgba = np.zeros((1, 3, 4), dtype=np.uint8)
+    rgba[0, :, :3] = [[0, 0, 0], [255, 255, 255], [128, 128, 128]]
+    rgba[0, :, 3] = [255, 255, 255]
+    p = _yaml(tmp_path, rgba, "occupied_thresh: 0.65\nfree_thresh: 0.2\nmode: scale\n", mode="RGBA")
+    m = read_map(p)
+    mid = 0.99 * ((255 - 128) / 255 - 0.2) / (0.65 - 0.2)
+    np.testing.assert_allclose(m.occupancy[0], [1.0, 0.0, mid], rtol=1e-6)
+    assert m.cells()[0].tolist() == [1, -1, 0]  # a graded cell is neither free nor occupied
+    rgba[0, 1, 3] = 100  # translucent: unknown in scale mode
+    p = _yaml(tmp_path, rgba, "occupied_thresh: 0.65\nfree_thresh: 0.2\nmode: scale\n", mode="RGBA")
+    assert read_map(p).occupancy[0, 1] == -1.0
+
+
+def test_raw_mode_reads_percent(tmp_path):
+    m = read_map(_yaml(tmp_path, [[0, 50, 100, 255]], "occupied_thresh: 0.65\nfree_thresh: 0.2\nmode: raw\n"))
+    assert m.occupancy.tolist() == [[0.0, 0.5, 1.0, -1.0]]
+
+
+@pytest.mark.parametrize(
+    "body, expect",
+    [
+        ("resolution: 0.05\norigin: [0, 0, 0]\noccupied_thresh: 0.65\nfree_thresh: 0.2\n", "missing key 'image'"),
+        ("image: img.png\nresolutoin: 0.05\norigin: [0, 0, 0]\noccupied_thresh: 0.65\nfree_thresh: 0.2\n",
+         ":2: unknown key 'resolutoin'; did you mean 'resolution'?"),
+        ("image: img.png\nresolution: -1\norigin: [0, 0, 0]\noccupied_thresh: 0.65\nfree_thresh: 0.2\n",
+         ":2: resolution must be metres per pixel > 0"),
+        ("image: img.png\nresolution: 0.05\norigin: [0]\noccupied_thresh: 0.65\nfree_thresh: 0.2\n",
+         ":3: origin must be [x, y, yaw]"),
+        ("image: nothere.png\nresolution: 0.05\norigin: [0, 0, 0]\noccupied_thresh: 0.65\nfree_thresh: 0.2\n",
+         ":1: image 'nothere.png' not found"),
+        ("image: img.png\nresolution: 0.05\norigin: [0, 0, 0]\noccupied_thresh: 0.65\nfree_thresh: 0.2\nmode: trinry\n",
+         ":6: unknown mode 'trinry'; did you mean 'trinary'?"),
+        ("image: img.png\nresolution: 0.05\norigin: [0, 0, 0]\noccupied_thresh: 0.2\nfree_thresh: 0.6\n",
+         "free_thresh 0.6 must be below occupied_thresh 0.2"),
+        ("image: img.png\nresolution: 0.05\norigin: [0, 0, 0]\noccupied_thresh: 0.65\nfree_thresh: 0.2\nnegate: 2\n",
+         ":6: negate must be 0 or 1"),
+        ("image: [img.png\n", "not valid YAML"),
+        ("- image\n", "must be a mapping of keys"),
+    ],
+)  # fmt: skip
+def test_bad_yaml_is_one_line_naming_the_place(tmp_path, body, expect):
+    Image.fromarray(np.zeros((2, 2), dtype=np.uint8)).save(tmp_path / "img.png")
+    p = tmp_path / "bad.yaml"
+    p.write_text(body)
+    with pytest.raises(MapFileError) as e:
+        read_map(p)
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith(str(p)) and expect in msg, msg
+
+
+def test_missing_file_and_unreadable_image(tmp_path):
+    with pytest.raises(MapFileError, match="no such map file"):
+        read_map(tmp_path / "none.yaml")
+    (tmp_path / "img.png").write_text("not a png")
+    p = tmp_path / "m.yaml"
+    p.write_text("image: img.png\nresolution: 0.05\norigin: [0, 0, 0]\noccupied_thresh: 0.65\nfree_thresh: 0.2\n")
+    with pytest.raises(MapFileError, match=r"m.yaml:1: image 'img.png' is not a readable image"):
+        read_map(p)
+
+
+def test_write_rejects_bad_grids(tmp_path):
+    with pytest.raises(MapFileError, match="non-empty 2-D"):
+        write_map(tmp_path / "x", np.zeros(3), 0.05, (0, 0))
+    with pytest.raises(MapFileError, match="finite"):
+        write_map(tmp_path / "x", np.full((2, 2), 2.0), 0.05, (0, 0))
+    with pytest.raises(MapFileError, match="resolution"):
+        write_map(tmp_path / "x", np.zeros((2, 2)), 0.0, (0, 0))
