@@ -15,8 +15,9 @@ A pixel of grey value ``x`` (the mean of its colour channels) has the occupancy 
 ``p = (255 - x) / 255`` (``x / 255`` with ``negate``). ``trinary``: ``p > occupied_thresh`` is
 occupied (1.0), ``p < free_thresh`` free (0.0), anything else unknown (-1). ``scale``: the same
 ends, values in between mapped linearly to ``0.99 * (p - free) / (occupied - free)``, and a pixel
-that is not fully opaque unknown. ``raw``: the grey value (after ``negate``) *is* the occupancy in
-percent, ``x <= 100`` gives ``x / 100`` and anything larger unknown.
+that is not fully opaque unknown. ``raw``: the grey value (truncated to an integer, after
+``negate``) *is* the occupancy in percent, ``x <= 100`` gives ``x / 100`` and anything larger
+unknown. Transparency counts only in ``scale`` mode.
 
 :func:`write_map` writes what ``map_saver`` writes: an 8-bit greyscale PNG with occupied 0,
 free 254, unknown 205, and the YAML with ``occupied_thresh 0.65``, ``free_thresh 0.196``,
@@ -198,6 +199,7 @@ def read_map(yaml_path: str | os.PathLike[str]) -> MapImage:
         grey = 255.0 - grey
     mode, occ_t, free_t = meta["mode"], meta["occupied_thresh"], meta["free_thresh"]
     if mode == "raw":
+        grey = np.floor(grey + 1e-9)  # map_server truncates the channel mean to an integer
         occ = np.where(grey <= 100.0, grey / 100.0, -1.0)
     else:
         p = (255.0 - grey) / 255.0
