@@ -161,3 +161,17 @@ def test_bad_inputs_are_one_line_with_an_exit_code(tmp_path, capsys):
         assert (got, out) == (code, ""), (argv, got, err)
         assert err.count("\n") == 1 and err.startswith("rsal map") and words in err, (argv, err)
     assert not (MAPS / "testroom.png.tmp").exists()
+
+
+def test_a_from_world_map_is_a_floorplan_the_simulator_loads_as_the_original(tmp_path):
+    """--from-world, then a world whose floorplan is that YAML: the same walls where the original is."""
+    from simulator.gridmap import GridMap
+    from simulator.loader import load_world
+
+    assert main(["--from-world", str(MAPS / "testroom.world"), "-o", str(tmp_path / "tr")]) == 0
+    (tmp_path / "w.world").write_text('define floorplan model ( )\nfloorplan ( bitmap "tr.yaml" )\n')
+    a = GridMap.from_floorplan(load_world(MAPS / "testroom.world").floorplan)
+    b = GridMap.from_floorplan(load_world(tmp_path / "w.world").floorplan)
+    assert (b.width, b.height, b.resolution) == (a.width, a.height, a.resolution)
+    assert b.origin == pytest.approx(a.origin)
+    np.testing.assert_array_equal(b.occupied, a.occupied)
