@@ -267,3 +267,19 @@ def test_simulator_and_read_map_agree_on_walls(tmp_path, body):
     (tmp_path / "w.yaml").write_text(f"floorplan: {{bitmap: {p.name}}}\n")
     g = GridMap.from_floorplan(load_world(tmp_path / "w.yaml").floorplan)
     np.testing.assert_array_equal(g.occupied, read_map(p).occupied[::-1])
+
+
+def test_the_documented_example_is_the_shipped_testroom_map(tmp_path):
+    """docs/mapping.md's format example, saved next to maps/testroom.png, reads as maps/testroom.yaml."""
+    import re
+
+    doc = (MAPS.parent / "docs" / "mapping.md").read_text()
+    example = re.search(r"```yaml\n(.*?)```", doc, re.S).group(1)
+    p = MAPS / "testroom.yaml"
+    (tmp_path / "testroom.png").write_bytes((MAPS / "testroom.png").read_bytes())
+    (tmp_path / "doc.yaml").write_text(example)
+    a, b = read_map(tmp_path / "doc.yaml"), read_map(p)
+    assert (a.resolution, a.origin, a.occupied_thresh, a.free_thresh, a.mode) == (
+        b.resolution, b.origin, b.occupied_thresh, b.free_thresh, b.mode
+    )  # fmt: skip
+    np.testing.assert_array_equal(a.occupancy, b.occupancy)
