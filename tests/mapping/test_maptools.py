@@ -175,3 +175,10 @@ def test_a_from_world_map_is_a_floorplan_the_simulator_loads_as_the_original(tmp
     assert (b.width, b.height, b.resolution) == (a.width, a.height, a.resolution)
     assert b.origin == pytest.approx(a.origin)
     np.testing.assert_array_equal(b.occupied, a.occupied)
+
+
+def test_help_returns_zero_instead_of_exiting(capsys):
+    assert main(["align", "--help"]) == 0
+    assert "rsal map align" in capsys.readouterr().out
+    assert main(["--from-world", "w.world", "--help"]) == 0
+    assert "--resolution" in capsys.readouterr().out
