@@ -182,3 +182,18 @@ def test_help_returns_zero_instead_of_exiting(capsys):
     assert "rsal map align" in capsys.readouterr().out
     assert main(["--from-world", "w.world", "--help"]) == 0
     assert "--resolution" in capsys.readouterr().out
+
+
+def test_align_copes_with_a_partial_noisy_built_map():
+    """A tour that saw half of the room, missed 30 % of the wall cells it passed and added 1 % clutter."""
+    plan = _plan()
+    built = _seen_from(plan, math.radians(-75.0), 0.3, 0.2)
+    occ = built.occupancy.copy()
+    rng = np.random.default_rng(1)
+    occ[:, int(occ.shape[1] * 0.55) :] = -1.0  # never seen
+    occ[(occ >= 0.5) & (rng.random(occ.shape) < 0.3)] = 0.0
+    occ[(occ == 0.0) & (rng.random(occ.shape) < 0.01)] = 1.0
+    a = align(Grid(occ, built.resolution, built.origin), plan)
+    assert abs(math.degrees(math.remainder(a.yaw + math.radians(75.0), math.tau))) < 1.0
+    assert math.hypot(a.x - 0.3, a.y - 0.2) < 0.05
+    assert 0.8 < a.inliers < 0.95 and a.residual > 0.05  # the clutter shows in the residual
