@@ -283,3 +283,15 @@ def test_the_documented_example_is_the_shipped_testroom_map(tmp_path):
         b.resolution, b.origin, b.occupied_thresh, b.free_thresh, b.mode
     )  # fmt: skip
     np.testing.assert_array_equal(a.occupancy, b.occupancy)
+
+
+def test_simulator_refuses_a_rotated_map_and_accepts_a_two_number_origin(tmp_path):
+    from simulator.errors import WorldFileError
+    from simulator.loader import load_world
+
+    _, yml = write_map(tmp_path / "rot", np.zeros((4, 4)), 0.05, (0.0, 0.0, 0.3))
+    with pytest.raises(WorldFileError, match=r"w.world:2: map 'rot.yaml': origin yaw 0.3 is not 0"):
+        load_world(_stage_world(tmp_path, 'bitmap "rot.yaml"'))
+    yml.write_text(yml.read_text().replace("origin: [0.0, 0.0, 0.3]", "origin: [1.5, -2]"))
+    assert read_map(yml).origin == (1.5, -2.0, 0.0)
+    assert load_world(_stage_world(tmp_path, 'bitmap "rot.yaml"')).floorplan.origin == (1.5, -2.0)
