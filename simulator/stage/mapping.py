@@ -364,17 +364,22 @@ class Mapper(DeviceMapping):
         w, h = image_size(fp.bitmap, f"map '{rel}'", bp.at.file, bp.at.line)
         res, (x0, y0) = fp.resolution, fp.origin
         sx, sy = w * res, h * res
-        why = f"floorplan '{name}': %s ignored, the map_server YAML '{rel}' places the map ({sx:g} x {sy:g} m "
-        why += f"from ({x0:g}, {y0:g})); remove it"
+
+        def why(key: str) -> str:
+            return (
+                f"floorplan '{name}': {key} ignored, the map_server YAML '{rel}' places the map "
+                f"({sx:g} x {sy:g} m from ({x0:g}, {y0:g})); remove it"
+            )
+
         if (p := P.get("size")) is not None:
             gx, gy, _ = parse_size(p, 0.0)
             if abs(gx - sx) > res / 2 or abs(gy - sy) > res / 2:
-                self.warn(p.at, why % "size")
+                self.warn(p.at, why("size"))
         if (p := P.get("pose")) is not None:
             px, py, _ = parse_pose(p)
             if abs(px - (x0 + sx / 2)) > res / 2 or abs(py - (y0 + sy / 2)) > res / 2:
-                self.warn(p.at, why % "pose")
+                self.warn(p.at, why("pose"))
         for key in ("origin", "map_resolution"):
             if (p := P.get(key)) is not None:
-                self.warn(p.at, why % key)
+                self.warn(p.at, why(key))
         return fp
