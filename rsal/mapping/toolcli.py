@@ -10,8 +10,9 @@
 floorplan and static models (:func:`rsal.mapping.tools.from_world`). ``align`` prints the rigid
 transform that lays the built map onto the plan, ``plan = R(yaw) built + (x, y)``, and its residual
 (:func:`rsal.mapping.tools.align`); with ``-o`` it also writes the built map moved into the plan's
-frame. A bare PNG plan is placed by ``--plan-resolution`` (default: the built map's) and
-``--plan-origin`` (default 0 0); dark pixels (below half brightness) are its walls.
+frame (axis-aligned, whatever origin yaw the inputs had). A bare PNG plan is placed by
+``--plan-resolution`` (default: the built map's) and ``--plan-origin`` (default 0 0); dark pixels
+(below half brightness) are its walls.
 
 Progress goes to stderr, results to stdout (one ``key=value`` line). Exit codes: 0 done, 1 a bad
 input (one line on stderr naming the file and a fix), 2 a bad command line (one line).
@@ -111,9 +112,7 @@ def _load(path: str, resolution: float | None, origin, what: str) -> Grid:
         if resolution is not None or origin is not None:
             raise MapFileError(f"{path}: a map_server YAML places itself; drop --plan-resolution/--plan-origin")
         m = read_map(path)
-        if abs(m.origin[2]) > 1e-9:
-            raise MapFileError(f"{path}: origin yaw {m.origin[2]!r} is not supported; the map must be axis-aligned")
-        return Grid(m.occupancy.astype(np.float64), m.resolution, (m.origin[0], m.origin[1]))
+        return Grid(m.occupancy.astype(np.float64), m.resolution, (m.origin[0], m.origin[1]), m.origin[2])
     from PIL import Image, UnidentifiedImageError
 
     if not Path(path).is_file():

@@ -47,23 +47,34 @@ Progress = Callable[[str], None]
 @dataclass(frozen=True)
 class Grid:
     """An occupancy grid in the map_server sense: ``occupancy`` (H, W) float, row 0 = the *top*
-    row, -1 unknown, else 0..1; ``origin`` = world (x, y) of the lower-left corner."""
+    row, -1 unknown, else 0..1; ``origin`` = world (x, y) of the lower-left corner, the grid
+    turned by ``yaw`` about it (map_server's origin yaw)."""
 
     occupancy: np.ndarray
     resolution: float
     origin: tuple[float, float]
+    yaw: float = 0.0
 
     @property
     def occupied(self) -> np.ndarray:
         return self.occupancy >= 0.5
 
+    def to_world(self, uv: np.ndarray) -> np.ndarray:
+        """Grid-frame metres (from the lower-left corner, along the rows and columns) to world."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        return uv @ np.array([[c, s], [-s, c]]) + self.origin
+
+    def to_grid(self, xy: np.ndarray) -> np.ndarray:
+        """World to grid-frame metres (the inverse of :meth:`to_world`)."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        return (xy - self.origin) @ np.array([[c, -s], [s, c]])
+
     def wall_points(self) -> np.ndarray:
         """World (x, y) of the centres of the occupied cells, (N, 2)."""
         r, c = np.nonzero(self.occupied)
         h = self.occupancy.shape[0]
-        x = self.origin[0] + (c + 0.5) * self.resolution
-        y = self.origin[1] + (h - r - 0.5) * self.resolution
-        return np.column_stack([x, y])
+        uv = np.column_stack([(c + 0.5) * self.resolution, (h - r - 0.5) * self.resolution])
+        return self.to_world(uv)
 
 
 # ---------------------------------------------------------------------------------- from a world
@@ -313,16 +324,15 @@ def _icp(src: np.ndarray, tree: cKDTree, yaw: float, tx: float, ty: float, cell:
 
 
 def resample(built: Grid, a: Alignment, snap_to: Grid | None = None) -> Grid:
-    """``built`` moved into the plan frame by ``a``: an axis-aligned grid at the built map's
+    """``built`` moved into the plan frame by ``a``: an axis-aligned grid (yaw 0) at the built map's
     resolution covering it (cell lines on ``snap_to``'s when given), each cell the built cell
     under its centre (nearest), unknown outside the built map."""
     res = built.resolution
     hb, wb = built.occupancy.shape
-    x0, y0 = built.origin
-    corners = np.array([[x0, y0], [x0 + wb * res, y0], [x0, y0 + hb * res], [x0 + wb * res, y0 + hb * res]])
-    moved = a.apply(corners)
+    corners = np.array([[0.0, 0.0], [wb * res, 0.0], [0.0, hb * res], [wb * res, hb * res]])
+    moved = a.apply(built.to_world(corners))
     lo, hi = moved.min(axis=0), moved.max(axis=0)
-    if snap_to is not None:
+    if snap_to is not None and snap_to.yaw == 0.0:
         so = np.array(snap_to.origin)
         lo = so + np.floor((lo - so) / res) * res
     w, h = (np.ceil((hi - lo) / res - 1e-9).astype(int)).tolist()
@@ -331,9 +341,10 @@ def resample(built: Grid, a: Alignment, snap_to: Grid | None = None) -> Grid:
     X, Y = np.meshgrid(cx, cy)
     c, s = math.cos(a.yaw), math.sin(a.yaw)
     dx, dy = X - a.x, Y - a.y
-    bx, by = c * dx + s * dy, -s * dx + c * dy  # R^T (p - t)
-    ix = np.floor((bx - x0) / res).astype(np.int64)
-    iy = np.floor((by - y0) / res).astype(np.int64)
+    b = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)  # R^T (p - t): the built map's world
+    uv = built.to_grid(b)
+    ix = np.floor(uv[..., 0] / res).astype(np.int64)
+    iy = np.floor(uv[..., 1] / res).astype(np.int64)
     inside = (ix >= 0) & (ix < wb) & (iy >= 0) & (iy < hb)
     out = np.full((h, w), -1.0)
     out[inside] = built.occupancy[hb - 1 - iy[inside], ix[inside]]

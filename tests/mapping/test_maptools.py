@@ -197,3 +197,24 @@ def test_align_copes_with_a_partial_noisy_built_map():
     assert abs(math.degrees(math.remainder(a.yaw + math.radians(75.0), math.tau))) < 1.0
     assert math.hypot(a.x - 0.3, a.y - 0.2) < 0.05
     assert 0.8 < a.inliers < 0.95 and a.residual > 0.05  # the clutter shows in the residual
+
+
+def test_align_takes_a_map_with_an_origin_yaw_and_writes_it_axis_aligned(tmp_path, capsys):
+    """map_server's origin yaw turns the whole image about its lower-left corner; -o undoes it."""
+    m = read_map(MAPS / "testroom.yaml")
+    write_map(tmp_path / "turned", m.occupancy, m.resolution, (1.0, 2.0, 0.5))
+    argv = ["align", str(tmp_path / "turned.yaml"), str(MAPS / "testroom.yaml"), "-o", str(tmp_path / "fixed")]
+    code, out, err = _run(capsys, argv)
+    assert code == 0, err
+    f = dict(kv.split("=") for kv in out.split())
+    c, s = math.cos(-0.5), math.sin(-0.5)
+    want = np.array([-5.0, -4.0]) - np.array([[c, -s], [s, c]]) @ np.array([1.0, 2.0])
+    assert abs(float(f["yaw_deg"]) - math.degrees(-0.5)) < 1.0
+    assert math.hypot(float(f["x"]) - want[0], float(f["y"]) - want[1]) < 0.05
+    fixed = read_map(tmp_path / "fixed.yaml")
+    assert fixed.origin[2] == 0.0
+    pts = Grid(fixed.occupancy.astype(float), fixed.resolution, fixed.origin[:2]).wall_points()
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(_plan().wall_points()).query(pts)
+    assert (d <= 0.0501).mean() > 0.95
