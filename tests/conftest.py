@@ -21,6 +21,23 @@ ROOT = Path(__file__).resolve().parent.parent
 MAPS = ROOT / "maps"
 
 
+def stock_session(listen: str | None = None, connect: str | None = None):
+    """A plain zenoh-python peer, as an outsider or a stock client opens it (no project code):
+    loopback endpoints, multicast scouting off."""
+    import json
+
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps([listen]))
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps([connect]))
+    return zenoh.open(conf)
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -10,12 +10,10 @@ proposals for an unknown prey and a forged award do not make a participant chase
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import time
 
 import pytest
-import zenoh
 
 from agents.contractnet import ACCEPT, CFP, Participant
 from agents.runtime import Agent, AgentHost
@@ -23,22 +21,14 @@ from agents.scenarios.hunt.agents import FollowAgent
 from agents.services import SendPosition, encode_message
 from rsal.data import Position
 from rsal.transport import TransportArgs, open_session
-from tests.conftest import LoopThread, free_port, wait_until
-
-
-def stock_session(endpoint: str) -> zenoh.Session:
-    """A plain zenoh-python peer, as an outsider would open it: loopback, multicast scouting off."""
-    c = zenoh.Config()
-    c.insert_json5("scouting/multicast/enabled", "false")
-    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    return zenoh.open(c)
+from tests.conftest import LoopThread, free_port, stock_session, wait_until
 
 
 @pytest.fixture
 def fabric():
     ep = f"tcp/127.0.0.1:{free_port()}"
     ours = open_session(TransportArgs(listen=[ep]))
-    outsider = stock_session(ep)
+    outsider = stock_session(connect=ep)
     lt = LoopThread()
     host = AgentHost(ours)
     lt.run(host.__aenter__())

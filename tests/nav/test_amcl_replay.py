@@ -12,7 +12,6 @@ to.
 
 from __future__ import annotations
 
-import json
 import math
 import threading
 import time
@@ -22,24 +21,13 @@ import numpy as np
 import zenoh
 
 from rsal.record import Recording
-from tests.conftest import ROOT, SPEEDUP, Proc, free_port, rsal_cmd, wait_until
+from tests.conftest import ROOT, SPEEDUP, Proc, free_port, rsal_cmd, stock_session, wait_until
 
 WORLD = str(ROOT / "maps" / "testroom.world")
 AMCL = str(ROOT / "deploy" / "testroom-replay-amcl.toml")
 DRIVE_S = 25.0  # simulated seconds of driving
 CONVERGED_S = 8.0  # the estimates from this long after the first one are judged
 CMD = {"v": 0.3, "w": 0.25}  # a circle of 1.2 m radius around (-2, 1.2): clear of the walls and the box
-
-
-def session(*, listen: str | None = None, connect: str | None = None) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    if listen:
-        conf.insert_json5("listen/endpoints", json.dumps([listen]))
-    if connect:
-        conf.insert_json5("connect/endpoints", json.dumps([connect]))
-    return zenoh.open(conf)
 
 
 def tokens(s: zenoh.Session) -> set[str]:
@@ -83,7 +71,7 @@ def test_amcl_localizes_on_a_replay_as_on_the_live_robot(tmp_path):
         # ------------------------------------------------------------ live, recorded
         started.append(Proc(rsal_cmd("sim", WORLD, "--truth", "--no-map", "--speedup", SPEEDUP, "--listen", ep)))
         started.append(Proc(rsal_cmd("serve", AMCL, "--connect", ep)))
-        with session(connect=ep) as s:
+        with stock_session(connect=ep) as s:
             want = {"rsal/r0/laser/0", "rsal/r0/position2d/0", "rsal/r0/position2d/3", "rsal/r0/localize/0"}
             wait_until(lambda: want <= tokens(s), 90, "the simulated robot, its ground truth and live AMCL")
             truth_live = Series(s, "rsal/r0/position2d/3/data")
@@ -117,7 +105,7 @@ def test_amcl_localizes_on_a_replay_as_on_the_live_robot(tmp_path):
         path = np.hypot(*np.diff(truth[:, 1:], axis=0).T).sum()
         assert path > 0.8 * CMD["v"] * DRIVE_S, f"the robot drove its circle ({path:.1f} m)"
         ep2 = f"tcp/127.0.0.1:{free_port()}"
-        with session(listen=ep2) as s:
+        with stock_session(listen=ep2) as s:
             started.append(Proc(rsal_cmd("serve", AMCL, "--connect", ep2)))
             play = Proc(rsal_cmd("play", str(run), "--connect", ep2, "--paused", "--rate", "1"))
             started.append(play)

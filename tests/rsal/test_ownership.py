@@ -10,7 +10,6 @@ token) is answered by the one session that serves it.
 
 from __future__ import annotations
 
-import json
 import logging
 
 import pytest
@@ -20,16 +19,9 @@ from rsal import ownership
 from rsal.client import query_rpc
 from rsal.keys import parse_device
 from rsal.msgs import ErrorCode, RpcError, ok_reply
-from tests.conftest import ROOT, rsal_cmd, wait_until
+from tests.conftest import ROOT, rsal_cmd, stock_session, wait_until
 
 KEY = "rsal/r0/position2d/0/rpc/describe"
-
-
-def stock_session(endpoint: str) -> zenoh.Session:
-    c = zenoh.Config()
-    c.insert_json5("scouting/multicast/enabled", "false")
-    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    return zenoh.open(c)
 
 
 @pytest.fixture(scope="module")
@@ -38,8 +30,8 @@ def fabric(tmp_path_factory):
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     sim = Proc(rsal_cmd("sim", str(ROOT / "maps" / "testroom.world"), "--listen", ep, "--no-map"))
-    rogue = stock_session(ep)
-    client = stock_session(ep)
+    rogue = stock_session(connect=ep)
+    client = stock_session(connect=ep)
     try:
         wait_until(
             lambda: any(r.ok for r in client.liveliness().get("rsal/r0/position2d/0", timeout=1.0)),

@@ -8,7 +8,6 @@ recorder's own files are tested in test_record.py.
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import threading
@@ -17,7 +16,7 @@ import time
 import msgpack
 import pytest
 import zenoh
-from conftest import Proc, free_port, rsal_cmd, wait_until
+from conftest import Proc, free_port, rsal_cmd, stock_session, wait_until
 from mcap.writer import CompressionType, Writer
 
 from rsal.record import Player, PlayOptions, Recording
@@ -53,17 +52,6 @@ def long_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("play") / "long.mcap"
     write_recording(path)
     return path
-
-
-def stock_session(listen: str | None = None, connect: str | None = None) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    if listen:
-        conf.insert_json5("listen/endpoints", json.dumps([listen]))
-    if connect:
-        conf.insert_json5("connect/endpoints", json.dumps([connect]))
-    return zenoh.open(conf)
 
 
 def test_a_start_near_the_end_reads_a_few_chunks_through_the_index(long_file):

@@ -11,7 +11,6 @@ line saying what was skipped; (d) bad inputs get one line and exit 1.
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import threading
@@ -19,8 +18,7 @@ import time
 
 import msgpack
 import pytest
-import zenoh
-from conftest import MAPS, SPEEDUP, Proc, free_port, rsal_cmd, wait_until
+from conftest import MAPS, SPEEDUP, Proc, free_port, rsal_cmd, stock_session, wait_until
 from mcap.writer import Writer
 
 from rsal.cli import build_parser
@@ -29,17 +27,6 @@ from rsal.record import Recording
 
 WORLD = str(MAPS / "testroom.world")
 RECORD_S = 3.0
-
-
-def stock_session(*, listen: str | None = None, connect: str | None = None) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    if listen:
-        conf.insert_json5("listen/endpoints", json.dumps([listen]))
-    if connect:
-        conf.insert_json5("connect/endpoints", json.dumps([connect]))
-    return zenoh.open(conf)
 
 
 @pytest.fixture(scope="module")
