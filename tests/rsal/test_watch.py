@@ -281,7 +281,7 @@ def _start_sim(procs):
 def test_watch_records_map_robot_laser_path_and_services(procs, tmp_path):
     sim, ep = _start_sim(procs)
     out = tmp_path / "out.rrd"
-    flags = ["--duration", "40", "--wait", "60", "--report-every", "2", "--connect", ep]
+    flags = ["--duration", "12", "--wait", "60", "--report-every", "2", "--connect", ep]
     watch = procs(rsal_cmd("watch", "--save", str(out), *flags))
     wait_until(lambda: "[watch] recording" in watch.output() or not watch.alive(), 70, "watch to start recording")
     goto = procs(rsal_cmd("goto", "r0", "0", "-2", "--connect", ep, "--wait", "30", "--timeout", "60"))
@@ -319,7 +319,7 @@ def test_watch_records_map_robot_laser_path_and_services(procs, tmp_path):
         "log/devices/r0",
     ):
         assert rows[path] > 0, f"{path} missing from {sorted(rows)}"
-    assert rows["world/robots/r0/laser"] >= 20  # ~5 scans/s for most of 40 s
+    assert rows["world/robots/r0/laser"] >= 20  # ~5 scans/s for most of 12 s
 
 
 CONTACT_WORLD = """\
