@@ -255,14 +255,23 @@ class _RateLimited:
 class Subscription:
     """A subscriber to one service; :meth:`close` undeclares it (the owning agent does on kill)."""
 
-    def __init__(self, services: Services, service: str, callback: Callback, flt: Filter | None, owner: str):
+    def __init__(
+        self,
+        services: Services,
+        service: str,
+        callback: Callback,
+        flt: Filter | None,
+        owner: str,
+        keyexpr: str | None = None,
+    ):
         self.service = service
         self.owner = owner
         self._services = services
         self._callback = callback
         self._filter = flt
         self.received = 0  # messages passed to the callback
-        self._sub = services.session.declare_subscriber(service_key(service), self._on_sample)
+        self.keyexpr = keyexpr or service_key(service)
+        self._sub = services.session.declare_subscriber(self.keyexpr, self._on_sample)
         self.closed = False
 
     def _on_sample(self, sample: zenoh.Sample) -> None:  # a Zenoh thread: decode, then hand over
@@ -294,6 +303,43 @@ class Subscription:
                 self._sub.undeclare()
             except Exception:  # the session may already be closed
                 pass
+
+
+class CellSubscription:
+    """Subscribers to one service in a changing set of cells (:mod:`agents.cells`): :meth:`watch`
+    declares the cells newly needed before it undeclares the ones no longer needed, so a receiver
+    that moves misses nothing in between. Host loop only; :meth:`close` undeclares all."""
+
+    def __init__(self, services: Services, service: str, callback: Callback, flt: Filter | None, owner: str):
+        self.service, self.owner = service, owner
+        self._args = (services, service, callback, flt, owner)
+        self._subs: dict[str, Subscription] = {}
+        self.closed = False
+
+    @property
+    def cells(self) -> set[str]:
+        return set(self._subs)
+
+    @property
+    def received(self) -> int:
+        return sum(s.received for s in self._subs.values())
+
+    def watch(self, cells: set[str]) -> None:
+        if self.closed:
+            return
+        service = self.service
+        for c in sorted(set(cells) - self._subs.keys()):
+            key = f"svc/{service}/{check_name('cell', c)}/*"
+            self._subs[c] = Subscription(*self._args, keyexpr=key)
+        for c in sorted(self._subs.keys() - set(cells)):
+            self._subs.pop(c).close()
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            for sub in self._subs.values():
+                sub.close()
+            self._subs.clear()
 
 
 class Services:
@@ -329,15 +375,19 @@ class Services:
         except RuntimeError:  # loop closed during shutdown
             pass
 
-    def publish(self, service: str, body: Any, *, sender: str, conversation: str | None = None) -> str:
-        """Put ``body`` on ``svc/<service>/<sender>``; returns the conversation id used."""
+    def publish(
+        self, service: str, body: Any, *, sender: str, conversation: str | None = None, cell: str | None = None
+    ) -> str:
+        """Put ``body`` on ``svc/<service>/<sender>``, or with ``cell`` on
+        ``svc/<service>/<cell>/<sender>`` (:mod:`agents.cells`); returns the conversation id used."""
         check_name("service", service)
         check_name("agent id", sender)
         schema = SCHEMAS.get(service)
         if schema is not None and not isinstance(body, schema):
             raise TypeError(f"service {service!r} carries {schema.__name__}, not {type(body).__name__}")
         conv = conversation or uuid.uuid4().hex[:16]
-        self.session.put(service_key(service, sender), encode_message(sender, body, conv, time.time()))
+        key = service_key(service, sender) if cell is None else f"svc/{service}/{check_name('cell', cell)}/{sender}"
+        self.session.put(key, encode_message(sender, body, conv, time.time()))
         return conv
 
     def subscribe(
@@ -347,6 +397,14 @@ class Services:
         or ``async``) runs on the host's loop."""
         check_name("service", service)
         return Subscription(self, service, callback, flt, owner)
+
+    def subscribe_cells(
+        self, service: str, callback: Callback, flt: Filter | None = None, *, owner: str = ""
+    ) -> CellSubscription:
+        """Receive the messages on ``svc/<service>/<cell>/*`` of the cells given to
+        :meth:`CellSubscription.watch` (none at first)."""
+        check_name("service", service)
+        return CellSubscription(self, service, callback, flt, owner)
 
     # ------------------------------------------------------------------ hello
     def declare_hello(self, hello: Hello) -> zenoh.Queryable:

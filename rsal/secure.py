@@ -138,7 +138,8 @@ def _rules_of(ident: Identity) -> list[dict]:
         stops = ["rsal/*/position2d/*/rpc/estop", "rsal/*/position2d/*/rpc/release"]
         rules.append(_rule(f"{n}-estop", "egress", ["query"], stops))
     elif ident.kind == "agents":
-        svc_out = [f"svc/{s}/{a}" for s in ident.services for a in ident.agents]
+        # all-to-all (svc/<service>/<agent>) and neighbourhood-scoped (svc/<service>/<cell>/<agent>)
+        svc_out = [k for s in ident.services for a in ident.agents for k in (f"svc/{s}/{a}", f"svc/{s}/*/{a}")]
         if svc_out:
             rules.append(_rule(f"{n}-svc-put", "ingress", ["put"], svc_out))
             rules += _read(f"{n}-svc", [f"svc/{s}/**" for s in ident.services])
