@@ -1,0 +1,6 @@
+"""ROS 2 over Zenoh: the fleet in ROS 2 tools through rmw_zenoh's wire, without a ROS installation.
+
+``wire`` holds rmw_zenoh's keys, attachment, QoS strings and graph tokens; ``types`` the message
+types, their RIHS01 hashes, CDR and the builders from RSAL data; ``export`` the exporter behind
+``rsal ros2`` (``cli``). What maps to what: ``docs/ros2.md``.
+"""
