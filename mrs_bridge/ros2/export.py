@@ -1,0 +1,319 @@
+"""The exporter behind ``rsal ros2``: the RSAL fleet as ROS 2 nodes on rmw_zenoh's wire.
+
+For every robot the fabric discovers (liveliness of ``rsal/<robot>/position2d/0`` and
+``rsal/<robot>/laser/<i>``, thesis 3.5's DeviceNode), one ROS node ``/<robot>/<node name>``:
+
+- publishes ``/<robot>/scan`` (``sensor_msgs/msg/LaserScan``, sensor-data QoS) from ``laser:0``
+  (``scan_<i>`` for ``laser:<i>``);
+- publishes ``/<robot>/odom`` (``nav_msgs/msg/Odometry``) from ``position2d:0`` and, with each
+  odometry message, ``/tf`` (``tf2_msgs/msg/TFMessage``): ``odom -> base_link`` and
+  ``base_link -> laser`` (the laser's mount from its ``describe`` geometry);
+- subscribes ``/<robot>/cmd_vel`` (``geometry_msgs/msg/Twist``) and sends each as the base's
+  VelocityCmd (clipped to the base's ``max_speed``): the device server's command timeout stops
+  the robot when the Twists stop, as for any RSAL commander.
+
+Frames are ``<prefix>odom``, ``<prefix>base_link``, ``<prefix>laser`` with the prefix
+``<robot>/`` by default, so that one rviz2 shows the whole fleet. Robots that join later are
+exported when their devices appear; a device whose token goes away takes its topics with it,
+and a robot with none left takes its node. What maps to what: ``docs/ros2.md``.
+
+Threads: discovery runs on the fabric's dispatcher; RSAL data arrives on Zenoh threads and only
+parks the latest sample per topic in an outbox (latest wins); one thread builds, encodes and
+puts the ROS messages, so a slow encoder never holds a Zenoh thread (STYLE rule 2).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from rsal.client import Fabric
+from rsal.interfaces.position2d import VelocityCmd
+from rsal.keys import DeviceAddr
+
+from . import types
+from .rmw import Node, Participant, Publisher, Subscription
+from .wire import DEFAULT_QOS, SENSOR_QOS, QoS
+
+__all__ = ["Exporter", "ExportConfig"]
+
+log = logging.getLogger(__name__)
+
+TF_QOS = QoS(depth=100)  # tf2_ros's TransformBroadcaster: reliable, keep last 100
+
+
+@dataclass(frozen=True)
+class ExportConfig:
+    """``robots``: node-name patterns (a Zenoh chunk, ``*`` wildcards: ``r*``); ``frame_prefix``
+    with ``{robot}`` for the robot's name; ``node_name``: the ROS node in each robot's namespace."""
+
+    domain: int = 0
+    robots: tuple[str, ...] = ("*",)
+    frame_prefix: str = "{robot}/"
+    node_name: str = "rsal"
+
+
+class _Outbox:
+    """The latest (build, data) per publisher; one thread builds, encodes and puts them."""
+
+    def __init__(self):
+        self._pending: dict[Publisher, tuple[Callable[[Any], Any], Any]] = {}
+        self._cond = threading.Condition()
+        self._closed = False
+        self.sent = 0
+        self._thread = threading.Thread(target=self._run, name="ros2-export", daemon=True)
+        self._thread.start()
+
+    def post(self, pub: Publisher, build: Callable[[Any], Any], data: Any) -> None:
+        with self._cond:
+            self._pending[pub] = (build, data)
+            self._cond.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._pending and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return
+                batch, self._pending = self._pending, {}
+            for pub, (build, data) in batch.items():
+                try:
+                    pub.publish(build(data))
+                    self.sent += 1
+                except Exception:
+                    log.exception("%s: could not publish", pub.entity.topic)
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+        self._thread.join(5.0)
+
+
+@dataclass
+class _Laser:
+    addr: DeviceAddr
+    proxy: Any
+    pub: Publisher
+    frame: str
+    mount: tuple[float, float, float]
+    listener: Callable
+
+
+@dataclass
+class _Base:
+    addr: DeviceAddr
+    proxy: Any
+    odom: Publisher
+    tf: Publisher
+    cmd: Subscription
+    listener: Callable
+    limits: tuple[float, float] | None
+
+
+@dataclass
+class _Robot:
+    name: str
+    node: Node
+    base: _Base | None = None
+    lasers: dict[int, _Laser] = field(default_factory=dict)
+
+    def topics(self) -> list[str]:
+        t = [lz.pub.entity.topic.rsplit("/", 1)[-1] for _, lz in sorted(self.lasers.items())]
+        if self.base is not None:
+            t += ["odom", "tf", "cmd_vel"]
+        return t
+
+
+class Exporter:
+    """Export the robots of a fabric to a ROS 2 domain. Use as a context manager."""
+
+    def __init__(self, fabric: Fabric, config: ExportConfig = ExportConfig(), on_change: Callable | None = None):
+        self.fabric = fabric
+        self.config = config
+        self.part = Participant(fabric.session, config.domain)
+        self.outbox = _Outbox()
+        self.on_change = on_change
+        self._robots: dict[str, _Robot] = {}
+        self._lock = threading.Lock()
+        self._closed = False
+        templates = [f"rsal/{r}/{iface}/*" for r in config.robots for iface in ("position2d", "laser")]
+        self._dnode = fabric.node(*templates)
+        self._dnode.on_join(self._join)
+        self._dnode.on_leave(self._leave)
+        for a in self._dnode.devices():  # already alive before the listeners were in place
+            fabric.dispatcher.submit(self._join, a)
+
+    def __enter__(self) -> Exporter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def robots(self) -> dict[str, list[str]]:
+        """Exported robots and their topics (relative to ``/<robot>``)."""
+        with self._lock:
+            return {n: r.topics() for n, r in sorted(self._robots.items())}
+
+    # ------------------------------------------------------------------ frames
+    def _frame(self, robot: str, name: str) -> str:
+        return self.config.frame_prefix.format(robot=robot) + name
+
+    # ------------------------------------------------------------------ discovery (dispatcher thread)
+    def _robot(self, name: str) -> _Robot:
+        r = self._robots.get(name)
+        if r is None:
+            r = _Robot(name, self.part.node(f"/{name}", self.config.node_name))
+            with self._lock:
+                self._robots[name] = r
+        return r
+
+    def _describe(self, proxy) -> dict:
+        try:
+            return proxy.describe(timeout=5.0).geometry or {}
+        except Exception as e:  # a silent device still gets its topics, with default geometry
+            log.warning("%s: no describe answer (%s); exporting it with default geometry", proxy.addr, e)
+            return {}
+
+    def _join(self, addr: DeviceAddr) -> None:
+        if self._closed:
+            return
+        if addr.interface == "position2d" and addr.index == 0:
+            self._join_base(addr)
+        elif addr.interface == "laser":
+            self._join_laser(addr)
+        else:
+            return
+        self._changed()
+
+    def _join_base(self, addr: DeviceAddr) -> None:
+        r = self._robot(addr.node)
+        if r.base is not None:
+            return
+        proxy = self.fabric.device(addr)
+        g = self._describe(proxy)
+        ms = g.get("max_speed")
+        limits = (float(ms[0]), float(ms[1])) if isinstance(ms, (list, tuple)) and len(ms) >= 2 else None
+        odom = r.node.publisher("odom", "nav_msgs/msg/Odometry", DEFAULT_QOS)
+        tf = r.node.publisher("/tf", "tf2_msgs/msg/TFMessage", TF_QOS)
+        cmd = r.node.subscription("cmd_vel", "geometry_msgs/msg/Twist", self._cmd_vel_handler(r), DEFAULT_QOS)
+        f_odom, f_base = self._frame(r.name, "odom"), self._frame(r.name, "base_link")
+        post = self.outbox.post
+
+        def build_tf(data):
+            tfs = [(f_odom, f_base, data.pose)]
+            tfs += [(f_base, lz.frame, lz.mount) for lz in list(r.lasers.values())]
+            return types.tf_message(data.t, tfs)
+
+        def on_odom(data) -> None:
+            post(odom, lambda d: types.odometry(d, f_odom, f_base), data)
+            post(tf, build_tf, data)
+
+        r.base = _Base(addr, proxy, odom, tf, cmd, on_odom, limits)
+        proxy.add_listener(on_odom, inline=True)
+
+    def _cmd_vel_handler(self, r: _Robot) -> Callable:
+        warned = [False]
+
+        def on_twist(msg, att) -> None:  # a Zenoh thread: hand the put to the dispatcher
+            base = r.base
+            if base is None:
+                return
+            v, w, vy = types.twist_to_velocity(msg)
+            if base.limits is not None:
+                vmax, wmax = base.limits
+                cv, cw = max(-vmax, min(vmax, v)), max(-wmax, min(wmax, w))
+                if (cv, cw) != (v, w) and not warned[0]:
+                    warned[0] = True
+                    log.warning(
+                        "/%s/cmd_vel: (%.3g m/s, %.3g rad/s) is over the base's max_speed (%g, %g); clipped "
+                        "(said once)",
+                        r.name,
+                        v,
+                        w,
+                        vmax,
+                        wmax,
+                    )
+                v, w = cv, cw
+            self.fabric.dispatcher.submit(self._send, base.addr, VelocityCmd(v, w, vy))
+
+        return on_twist
+
+    def _send(self, addr: DeviceAddr, cmd: VelocityCmd) -> None:
+        if not self._closed:
+            self.fabric.send(addr, cmd)
+
+    def _join_laser(self, addr: DeviceAddr) -> None:
+        r = self._robot(addr.node)
+        if addr.index in r.lasers:
+            return
+        proxy = self.fabric.device(addr)
+        desc = None
+        try:
+            desc = proxy.describe(timeout=5.0)
+        except Exception as e:
+            log.warning("%s: no describe answer (%s); exporting it with default geometry", addr, e)
+        g = (desc.geometry if desc is not None else None) or {}
+        pose = g.get("pose")
+        mount = tuple(float(x) for x in pose[:3]) if isinstance(pose, (list, tuple)) and len(pose) >= 3 else (0, 0, 0)
+        rate = float(desc.rate) if desc is not None and desc.rate else 0.0
+        suffix = "" if addr.index == 0 else f"_{addr.index}"
+        pub = r.node.publisher(f"scan{suffix}", "sensor_msgs/msg/LaserScan", SENSOR_QOS)
+        frame = self._frame(r.name, f"laser{suffix}")
+        scan_time = 1.0 / rate if rate > 0 else 0.0
+        post = self.outbox.post
+
+        def build(scan):
+            return types.laser_scan(scan, frame, scan_time)
+
+        def on_scan(scan) -> None:
+            post(pub, build, scan)
+
+        r.lasers[addr.index] = _Laser(addr, proxy, pub, frame, mount, on_scan)
+        proxy.add_listener(on_scan, inline=True)
+
+    def _leave(self, addr: DeviceAddr) -> None:
+        r = self._robots.get(addr.node)
+        if r is None or self._closed:
+            return
+        if addr.interface == "position2d" and addr.index == 0 and r.base is not None:
+            b, r.base = r.base, None
+            b.proxy.remove_listener(b.listener)
+            b.proxy.undeclare()
+            for e in (b.odom, b.tf, b.cmd):
+                e.close()
+        elif addr.interface == "laser" and addr.index in r.lasers:
+            lz = r.lasers.pop(addr.index)
+            lz.proxy.remove_listener(lz.listener)
+            lz.proxy.undeclare()
+            lz.pub.close()
+        else:
+            return
+        if r.base is None and not r.lasers:
+            r.node.close()
+            with self._lock:
+                self._robots.pop(r.name, None)
+        self._changed()
+
+    def _changed(self) -> None:
+        if self.on_change is not None:
+            try:
+                self.on_change(self.robots())
+            except Exception:
+                log.exception("the exporter's change listener failed")
+
+    # ------------------------------------------------------------------ shutdown
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._dnode.close()
+        self.outbox.close()
+        with self._lock:
+            robots, self._robots = list(self._robots.values()), {}
+        for r in robots:
+            r.node.close()
