@@ -1,0 +1,218 @@
+"""Multi-process integration of ``rsal ros2`` (docs/ros2.md): ``rsal sim`` + ``rsal ros2`` as real
+processes on loopback, and stock Zenoh sessions playing the ROS 2 peer. The LaserScan is decoded
+by a second CDR decoder written here with ``struct`` (not the library the exporter encodes with);
+the Twist test judges r0 by the simulator's ground truth (``sim:simulation:0`` ``rpc/get_pose``).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import threading
+import time
+
+import numpy as np
+import pytest
+import zenoh
+from conftest import MAPS, Proc, free_port, rsal_cmd, wait_until
+
+from mrs_bridge.ros2.wire import Attachment, Entity, Kind
+
+WORLD = str(MAPS / "testroom.world")
+SCAN_HASH = "RIHS01_64c191398013af96509d518dac71d5164f9382553fce5c1f8cca5be7924bd828"
+TWIST_HASH = "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a"
+SCAN_KEY = f"0/r0/scan/sensor_msgs::msg::dds_::LaserScan_/{SCAN_HASH}"
+TWIST_TYPE = "geometry_msgs::msg::dds_::Twist_"
+
+
+def stock_session(port: int) -> zenoh.Session:
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"peer"')
+    cfg.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(cfg)
+
+
+def decode_laser_scan(b: bytes) -> dict:
+    """sensor_msgs/msg/LaserScan from CDR little-endian, by hand: alignment counts from the byte
+    after the 4-byte encapsulation header."""
+    assert b[:4] == b"\x00\x01\x00\x00", "CDR little-endian encapsulation"
+    body = b[4:]
+    o = 0
+
+    def align(n):
+        nonlocal o
+        o += (-o) % n
+
+    def take(fmt, size):
+        nonlocal o
+        align(size)
+        v = struct.unpack_from("<" + fmt, body, o)
+        o += struct.calcsize("<" + fmt)
+        return v
+
+    sec, nsec = take("iI", 4)
+    (n,) = take("I", 4)
+    frame = body[o : o + n - 1].decode()
+    assert body[o + n - 1] == 0, "frame_id ends with NUL"
+    o += n
+    a0, a1, da, dt, st, r0, r1 = take("7f", 4)
+    (k,) = take("I", 4)
+    ranges = np.frombuffer(body, "<f4", k, o)
+    o += 4 * k
+    (ki,) = take("I", 4)
+    o += 4 * ki
+    assert o == len(body), "no trailing bytes"
+    return dict(
+        t=sec + nsec * 1e-9,
+        frame=frame,
+        angle_min=a0,
+        angle_max=a1,
+        angle_increment=da,
+        scan_time=st,
+        range_min=r0,
+        range_max=r1,
+        ranges=ranges,
+    )
+
+
+@pytest.fixture(scope="module")
+def fleet():
+    from rsal.client import Fabric
+    from rsal.transport import TransportArgs
+
+    port = free_port()
+    started = [Proc(rsal_cmd("sim", WORLD, "--listen", f"tcp/127.0.0.1:{port}"))]
+    fab = None
+    try:
+        started.append(Proc(rsal_cmd("ros2", "--connect", f"tcp/127.0.0.1:{port}")))
+        fab = Fabric.connect(TransportArgs(connect=[f"tcp/127.0.0.1:{port}"]))
+        fab.node("r0:*:*").wait_for("r0:laser:0", timeout=30)
+        fab.node("sim:*:*").wait_for("sim:simulation:0", timeout=30)
+        exp = started[1]
+        wait_until(lambda: "r0 (scan odom tf cmd_vel)" in exp.output() or not exp.alive(), 30, "rsal ros2 to export r0")
+        assert exp.alive(), exp.output()
+        yield port, fab, exp
+    finally:
+        if fab is not None:
+            fab.close()
+        for p in reversed(started):
+            p.close()
+
+
+def test_a_stock_subscriber_on_the_exact_key_receives_laser_scans(fleet):
+    port, fab, _ = fleet
+    laser = fab.device("r0:laser:0")
+    sensor = laser.describe().geometry["sensors"][0]
+    rsal_scans: dict[float, np.ndarray] = {}
+    laser.add_listener(lambda m: rsal_scans.__setitem__(round(m.t, 6), np.array(m.ranges)), inline=True)
+    got: list[tuple[bytes, bytes | None]] = []
+    lock = threading.Lock()
+
+    def on_sample(s):
+        with lock:
+            got.append((s.payload.to_bytes(), None if s.attachment is None else s.attachment.to_bytes()))
+
+    with stock_session(port) as s, s.declare_subscriber(SCAN_KEY, on_sample):
+        wait_until(lambda: len(got) >= 5, 15, "five LaserScans on " + SCAN_KEY)
+    with lock:
+        samples = list(got)
+    seqs = []
+    for payload, att in samples:
+        a = Attachment.from_bytes(att)  # 33 bytes, GID length 16
+        seqs.append(a.sequence)
+        assert abs(a.timestamp_ns / 1e9 - time.time()) < 60
+        m = decode_laser_scan(payload)
+        assert m["frame"] == "r0/laser"
+        assert len(m["ranges"]) == sensor["samples"]
+        assert m["angle_min"] == pytest.approx(-sensor["fov"] / 2, abs=1e-5)
+        assert m["angle_max"] - m["angle_min"] == pytest.approx(sensor["fov"], abs=1e-4)
+        assert m["angle_increment"] == pytest.approx(sensor["fov"] / (sensor["samples"] - 1), rel=1e-4)
+        assert (m["range_min"], m["range_max"]) == pytest.approx((sensor["range_min"], sensor["range_max"]), rel=1e-6)
+        assert m["scan_time"] == pytest.approx(0.1, rel=1e-3)
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs), f"sequence numbers must grow: {seqs}"
+    # the very ranges the RSAL laser published with the same stamp
+    m = decode_laser_scan(samples[-1][0])
+    same = rsal_scans.get(round(m["t"], 6))
+    assert same is not None, "an RSAL scan with the ROS scan's stamp"
+    np.testing.assert_array_equal(m["ranges"], same)
+
+
+def test_graph_tokens_show_the_node_its_publishers_and_subscription(fleet):
+    port, _, _ = fleet
+    with stock_session(port) as s:
+        ents = [Entity.parse(str(r.ok.key_expr)) for r in s.liveliness().get("@ros2_lv/0/**", timeout=5)]
+    mine = {(e.kind, e.topic, e.type) for e in ents if e.namespace == "/r0" and e.node == "rsal"}
+    assert mine == {
+        (Kind.NODE, "", ""),
+        (Kind.PUBLISHER, "/r0/scan", "sensor_msgs::msg::dds_::LaserScan_"),
+        (Kind.PUBLISHER, "/r0/odom", "nav_msgs::msg::dds_::Odometry_"),
+        (Kind.PUBLISHER, "/tf", "tf2_msgs::msg::dds_::TFMessage_"),
+        (Kind.SUBSCRIPTION, "/r0/cmd_vel", TWIST_TYPE),
+    }
+    scan = next(e for e in ents if e.topic == "/r0/scan")
+    assert scan.type_hash == SCAN_HASH and scan.qos.reliability == 2 and scan.qos.depth == 5
+
+
+def true_pose(fab) -> tuple[float, float, float]:
+    return tuple(fab.device("sim:simulation:0").rpc("get_pose", name="r0")["pose"])
+
+
+def moved(a, b, eps: float = 1e-4) -> bool:
+    return math.hypot(a[0] - b[0], a[1] - b[1]) > eps or abs(a[2] - b[2]) > eps
+
+
+def twist_cdr(v: float, w: float) -> bytes:
+    return b"\x00\x01\x00\x00" + struct.pack("<6d", v, 0.0, 0.0, 0.0, 0.0, w)
+
+
+@pytest.mark.parametrize("type_hash", [TWIST_HASH, "TypeHashNotSupported"], ids=["jazzy", "humble"])
+def test_a_twist_on_cmd_vel_moves_r0_and_r0_stops_when_the_twists_stop(fleet, type_hash):
+    port, fab, _ = fleet
+    key = f"0/r0/cmd_vel/{TWIST_TYPE}/{type_hash}"
+    gid = bytes(range(16))
+    with stock_session(port) as s:
+        seq = 0
+
+        def put_for(seconds: float, w: float) -> None:
+            nonlocal seq
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                seq += 1
+                s.put(key, twist_cdr(0.0, w), attachment=Attachment(seq, time.time_ns(), gid).to_bytes())
+                time.sleep(0.1)  # the commander's own 10 Hz rate, as teleop_twist_keyboard's
+
+        start = true_pose(fab)
+        put_for(1.5, 0.8)
+        turned = true_pose(fab)
+        assert abs(math.remainder(turned[2] - start[2], math.tau)) > 0.3, f"r0 turned: {start} -> {turned}"
+    # no more Twists: the server's command timeout (0.5 s) stops r0
+    t0 = time.monotonic()
+    last, settled = true_pose(fab), None
+    while time.monotonic() - t0 < 3.0:
+        time.sleep(0.1)
+        p = true_pose(fab)
+        if moved(p, last):
+            settled = None
+        elif settled is None:
+            settled = time.monotonic() - t0
+        last = p
+    assert settled is not None and settled < 1.5, f"r0 still moving {time.monotonic() - t0:.1f} s after the last Twist"
+
+
+def test_a_twist_without_the_attachment_or_with_another_hash_is_dropped(fleet):
+    port, fab, exp = fleet
+    with stock_session(port) as s:
+        start = true_pose(fab)
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            s.put(f"0/r0/cmd_vel/{TWIST_TYPE}/{TWIST_HASH}", twist_cdr(0.0, 0.8))  # no attachment
+            s.put(
+                f"0/r0/cmd_vel/{TWIST_TYPE}/RIHS01_{'0' * 64}",
+                twist_cdr(0.0, 0.8),
+                attachment=Attachment(1, time.time_ns(), bytes(16)).to_bytes(),
+            )
+            time.sleep(0.1)
+        assert not moved(start, true_pose(fab), eps=1e-3)
+    wait_until(lambda: "attachment must be 33 bytes" in exp.output(), 5, "the exporter to log the dropped Twist")
+    assert "is not RIHS01_9c45" in exp.output()
