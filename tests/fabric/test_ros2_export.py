@@ -216,3 +216,27 @@ def test_a_twist_without_the_attachment_or_with_another_hash_is_dropped(fleet):
         assert not moved(start, true_pose(fab), eps=1e-3)
     wait_until(lambda: "attachment must be 33 bytes" in exp.output(), 5, "the exporter to log the dropped Twist")
     assert "is not RIHS01_9c45" in exp.output()
+
+
+def r0_entities(port: int) -> set[tuple[Kind, str]]:
+    with stock_session(port) as s:
+        ents = [Entity.parse(str(r.ok.key_expr)) for r in s.liveliness().get("@ros2_lv/0/**", timeout=3)]
+    return {(e.kind, e.topic) for e in ents if e.namespace == "/r0"}
+
+
+def test_robots_that_join_are_exported_and_robots_that_leave_take_their_topics(procs):
+    sim_port, exp_port = free_port(), free_port()
+    exp = procs(
+        rsal_cmd(
+            "ros2", "--connect", f"tcp/127.0.0.1:{sim_port}", "--listen", f"tcp/127.0.0.1:{exp_port}", "--robots", "r0"
+        )
+    )
+    wait_until(lambda: "looking for robots matching r0" in exp.output(), 30, "rsal ros2 to start")
+    assert r0_entities(exp_port) == set()
+    sim = procs(rsal_cmd("sim", WORLD, "--listen", f"tcp/127.0.0.1:{sim_port}"))
+    wait_until(lambda: "r0 (scan odom tf cmd_vel)" in exp.output(), 60, "r0 exported once the simulator runs")
+    wait_until(lambda: (Kind.SUBSCRIPTION, "/r0/cmd_vel") in r0_entities(exp_port), 10, "r0's graph tokens")
+    sim.stop()
+    wait_until(lambda: "0 robot(s) exported: none yet" in exp.output(), 30, "r0 withdrawn when its server stops")
+    wait_until(lambda: r0_entities(exp_port) == set(), 10, "r0's graph tokens to go")
+    assert exp.alive(), exp.output()
