@@ -175,3 +175,27 @@ def test_graph_tokens_build_and_parse_back():
     ):
         with pytest.raises(wire.WireError, match=msg):
             wire.Entity.parse(bad)
+
+
+def test_the_documented_wire_examples_are_what_the_code_writes():
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "ros2.md").read_text()
+    h = PUBLISHED["sensor_msgs/msg/LaserScan"]
+    assert f"`{wire.topic_key(0, '/r0/scan', types.dds_name('sensor_msgs/msg/LaserScan'), h)}`" in doc
+    assert f"profile is `{wire.SENSOR_QOS.to_keyexpr()}`, rclcpp's default `{wire.DEFAULT_QOS.to_keyexpr()}`" in doc
+    sub = wire.Entity(
+        0,
+        "9652c07d455a5b1bed06e17cd8f36b84",
+        0,
+        3,
+        wire.Kind.SUBSCRIPTION,
+        "/r0",
+        "rsal",
+        topic="/r0/cmd_vel",
+        type=types.dds_name("geometry_msgs/msg/Twist"),
+        type_hash=PUBLISHED["geometry_msgs/msg/Twist"],
+        qos=wire.DEFAULT_QOS,
+    )
+    head, tail = sub.token.split("RIHS01_9c45")
+    assert f"`{head}RIHS01_9c45...{tail[-len('/::,10:,:,:,,') :]}`" in doc
