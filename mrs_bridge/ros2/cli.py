@@ -32,7 +32,9 @@ def _domain(text: str) -> int:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("ros2", help="export the fleet to ROS 2 (rmw_zenoh): scan, odom, tf, cmd_vel per robot")
+    p = sub.add_parser(
+        "ros2", help="export the fleet to ROS 2 (rmw_zenoh): scan, odom, tf, cmd_vel, amcl_pose, goal_pose, plan"
+    )
     p.add_argument(
         "--robots",
         type=_robots,
@@ -52,6 +54,7 @@ def register(sub) -> None:
         metavar="TEMPLATE",
         help="prefix of every frame id, {robot} the robot's name (default '{robot}/': r0/odom, r0/base_link)",
     )
+    p.add_argument("--map-frame", default="map", help="frame id of the shared floor plan (default map)")
     p.add_argument("--node-name", default="rsal", help="the ROS node in each robot's namespace (default rsal)")
     add_transport_args(p)
     p.set_defaults(func=_run)
@@ -93,7 +96,7 @@ def _run(args: argparse.Namespace) -> int:
     if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", args.node_name):
         print(f"rsal ros2: --node-name {args.node_name!r} is not a ROS node name (letters, digits, _)", file=sys.stderr)
         return 1
-    config = ExportConfig(domain, tuple(args.robots), args.frame_prefix, args.node_name)
+    config = ExportConfig(domain, tuple(args.robots), args.frame_prefix, args.node_name, args.map_frame)
     stop, _ = stop_on_signals()
     last: list[str] = []
 

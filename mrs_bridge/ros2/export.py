@@ -1,7 +1,8 @@
 """The exporter behind ``rsal ros2``: the RSAL fleet as ROS 2 nodes on rmw_zenoh's wire.
 
-For every robot the fabric discovers (liveliness of ``rsal/<robot>/position2d/0`` and
-``rsal/<robot>/laser/<i>``, thesis 3.5's DeviceNode), one ROS node ``/<robot>/<node name>``:
+For every robot the fabric discovers (liveliness of ``rsal/<robot>/position2d/0``,
+``.../laser/<i>``, ``.../localize/0``, ``.../planner/0``; thesis 3.5's DeviceNode), one ROS node
+``/<robot>/<node name>``:
 
 - publishes ``/<robot>/scan`` (``sensor_msgs/msg/LaserScan``, sensor-data QoS) from ``laser:0``
   (``scan_<i>`` for ``laser:<i>``);
@@ -10,10 +11,18 @@ For every robot the fabric discovers (liveliness of ``rsal/<robot>/position2d/0`
   ``base_link -> laser`` (the laser's mount from its ``describe`` geometry);
 - subscribes ``/<robot>/cmd_vel`` (``geometry_msgs/msg/Twist``) and sends each as the base's
   VelocityCmd (clipped to the base's ``max_speed``): the device server's command timeout stops
-  the robot when the Twists stop, as for any RSAL commander.
+  the robot when the Twists stop, as for any RSAL commander;
+- with a localizer (``localize:0``, the ``amcl`` driver): publishes ``/<robot>/amcl_pose``
+  (``geometry_msgs/msg/PoseWithCovarianceStamped`` in the map frame) and ``map -> odom`` on
+  ``/tf`` (the estimate composed with the inverse of the latest odometry pose);
+- with a global planner (``planner:0``, ``wavefront``): subscribes ``/<robot>/goal_pose``
+  (``geometry_msgs/msg/PoseStamped`` in the map frame -> the planner's ``set_goal``) and publishes
+  ``/<robot>/plan`` (``nav_msgs/msg/Path``, the planner's waypoints) whenever the goal or the
+  number of waypoints changes.
 
 Frames are ``<prefix>odom``, ``<prefix>base_link``, ``<prefix>laser`` with the prefix
-``<robot>/`` by default, so that one rviz2 shows the whole fleet. Robots that join later are
+``<robot>/`` by default, so that one rviz2 shows the whole fleet; the map frame (``map``) is
+the fleet's shared floor plan and has no prefix. Robots that join later are
 exported when their devices appear; a device whose token goes away takes its topics with it,
 and a robot with none left takes its node. What maps to what: ``docs/ros2.md``.
 
@@ -30,7 +39,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from rsal import geometry
 from rsal.client import Fabric
+from rsal.data import Position
 from rsal.interfaces.position2d import VelocityCmd
 from rsal.keys import DeviceAddr
 
@@ -54,22 +65,24 @@ class ExportConfig:
     robots: tuple[str, ...] = ("*",)
     frame_prefix: str = "{robot}/"
     node_name: str = "rsal"
+    map_frame: str = "map"
 
 
 class _Outbox:
-    """The latest (build, data) per publisher; one thread builds, encodes and puts them."""
+    """The latest (build, data) per publisher and slot; one thread builds, encodes and puts them
+    (a build that returns None puts nothing)."""
 
     def __init__(self):
-        self._pending: dict[Publisher, tuple[Callable[[Any], Any], Any]] = {}
+        self._pending: dict[tuple[Publisher, int], tuple[Callable[[Any], Any], Any]] = {}
         self._cond = threading.Condition()
         self._closed = False
         self.sent = 0
         self._thread = threading.Thread(target=self._run, name="ros2-export", daemon=True)
         self._thread.start()
 
-    def post(self, pub: Publisher, build: Callable[[Any], Any], data: Any) -> None:
+    def post(self, pub: Publisher, build: Callable[[Any], Any], data: Any, slot: int = 0) -> None:
         with self._cond:
-            self._pending[pub] = (build, data)
+            self._pending[(pub, slot)] = (build, data)
             self._cond.notify()
 
     def _run(self) -> None:
@@ -80,10 +93,12 @@ class _Outbox:
                 if self._closed:
                     return
                 batch, self._pending = self._pending, {}
-            for pub, (build, data) in batch.items():
+            for (pub, _), (build, data) in batch.items():
                 try:
-                    pub.publish(build(data))
-                    self.sent += 1
+                    msg = build(data)
+                    if msg is not None:
+                        pub.publish(msg)
+                        self.sent += 1
                 except Exception:
                     log.exception("%s: could not publish", pub.entity.topic)
 
@@ -116,17 +131,37 @@ class _Base:
 
 
 @dataclass
+class _Nav:
+    """A localizer's or a planner's export: its proxy, listener, publisher and subscription."""
+
+    addr: DeviceAddr
+    proxy: Any
+    listener: Callable
+    pub: Publisher
+    sub: Subscription | None = None
+
+
+@dataclass
 class _Robot:
     name: str
     node: Node
     base: _Base | None = None
     lasers: dict[int, _Laser] = field(default_factory=dict)
+    localize: _Nav | None = None
+    planner: _Nav | None = None
 
     def topics(self) -> list[str]:
         t = [lz.pub.entity.topic.rsplit("/", 1)[-1] for _, lz in sorted(self.lasers.items())]
         if self.base is not None:
             t += ["odom", "tf", "cmd_vel"]
+        if self.localize is not None:
+            t += ["amcl_pose"]
+        if self.planner is not None:
+            t += ["goal_pose", "plan"]
         return t
+
+    def empty(self) -> bool:
+        return self.base is None and not self.lasers and self.localize is None and self.planner is None
 
 
 class Exporter:
@@ -141,7 +176,8 @@ class Exporter:
         self._robots: dict[str, _Robot] = {}
         self._lock = threading.Lock()
         self._closed = False
-        templates = [f"rsal/{r}/{iface}/*" for r in config.robots for iface in ("position2d", "laser")]
+        ifaces = ("position2d", "laser", "localize", "planner")
+        templates = [f"rsal/{r}/{iface}/*" for r in config.robots for iface in ifaces]
         self._dnode = fabric.node(*templates)
         self._dnode.on_join(self._join)
         self._dnode.on_leave(self._leave)
@@ -186,6 +222,10 @@ class Exporter:
             self._join_base(addr)
         elif addr.interface == "laser":
             self._join_laser(addr)
+        elif addr.interface == "localize" and addr.index == 0:
+            self._join_localize(addr)
+        elif addr.interface == "planner" and addr.index == 0:
+            self._join_planner(addr)
         else:
             return
         self._changed()
@@ -291,13 +331,101 @@ class Exporter:
             lz.proxy.remove_listener(lz.listener)
             lz.proxy.undeclare()
             lz.pub.close()
+        elif addr.interface in ("localize", "planner") and addr.index == 0 and getattr(r, addr.interface):
+            nav = getattr(r, addr.interface)
+            setattr(r, addr.interface, None)
+            nav.proxy.remove_listener(nav.listener)
+            nav.proxy.undeclare()
+            for e in (nav.pub, nav.sub):
+                if e is not None:
+                    e.close()
         else:
             return
-        if r.base is None and not r.lasers:
+        if r.empty():
             r.node.close()
             with self._lock:
                 self._robots.pop(r.name, None)
         self._changed()
+
+    def _join_localize(self, addr: DeviceAddr) -> None:
+        r = self._robot(addr.node)
+        if r.localize is not None:
+            return
+        proxy = self.fabric.device(addr)
+        pub = r.node.publisher("amcl_pose", "geometry_msgs/msg/PoseWithCovarianceStamped", DEFAULT_QOS)
+        f_map, f_odom = self.config.map_frame, self._frame(r.name, "odom")
+        post = self.outbox.post
+
+        def build(data):
+            return types.pose_with_covariance_stamped(data, f_map)
+
+        def build_tf(data):
+            base = r.base
+            odom = base.proxy.latest if base is not None else None
+            if odom is None:
+                return None
+            map_odom = geometry.compose(data.pose, geometry.invert(odom.pose))
+            return types.tf_message(data.t, [(f_map, f_odom, tuple(map_odom))])
+
+        def on_pose(data) -> None:
+            post(pub, build, data)
+            base = r.base
+            if base is not None:
+                post(base.tf, build_tf, data, slot=1)
+
+        r.localize = _Nav(addr, proxy, on_pose, pub)
+        proxy.add_listener(on_pose, inline=True)
+
+    def _join_planner(self, addr: DeviceAddr) -> None:
+        r = self._robot(addr.node)
+        if r.planner is not None:
+            return
+        proxy = self.fabric.device(addr)
+        f_map = self.config.map_frame
+        pub = r.node.publisher("plan", "nav_msgs/msg/Path", DEFAULT_QOS)
+        submit = self.fabric.dispatcher.submit
+        warned = [False]
+
+        def on_goal(msg, att) -> None:  # a Zenoh thread: hand the rpc to the dispatcher
+            frame, goal = types.pose_stamped_to_goal(msg)
+            if frame not in ("", f_map):
+                if not warned[0]:
+                    warned[0] = True
+                    log.warning(
+                        "/%s/goal_pose: frame %r is not the map frame %r; dropped (said once)", r.name, frame, f_map
+                    )
+                return
+            submit(self._set_goal, proxy, goal)
+
+        last: list[Any] = [None]
+
+        def on_status(data) -> None:
+            key = (data.goal, data.waypoint_count)
+            if key != last[0]:
+                last[0] = key
+                submit(self._publish_plan, proxy, pub, data.t)
+
+        sub = r.node.subscription("goal_pose", "geometry_msgs/msg/PoseStamped", on_goal, DEFAULT_QOS)
+        r.planner = _Nav(addr, proxy, on_status, pub, sub)
+        proxy.add_listener(on_status, inline=True)
+
+    def _set_goal(self, planner, goal: tuple[float, float, float]) -> None:
+        if self._closed:
+            return
+        fut = planner.set_goal(Position(*goal))
+        if fut.done() and fut.exception() is not None:
+            log.warning("%s: goal %s refused: %s", planner.addr, goal, fut.exception())
+
+    def _publish_plan(self, planner, pub: Publisher, t: float) -> None:
+        if self._closed or pub.closed:
+            return
+        try:
+            wps = [w.as_tuple() for w in planner.waypoints(timeout=5.0)]
+        except Exception as e:
+            log.warning("%s: no waypoints (%s); plan not published", planner.addr, e)
+            return
+        f_map = self.config.map_frame
+        self.outbox.post(pub, lambda d: types.path(d[0], f_map, d[1]), (t, wps))
 
     def _changed(self) -> None:
         if self.on_change is not None:

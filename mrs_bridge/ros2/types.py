@@ -40,6 +40,9 @@ __all__ = [
     "tf_message",
     "twist",
     "twist_to_velocity",
+    "pose_with_covariance_stamped",
+    "path",
+    "pose_stamped_to_goal",
 ]
 
 #: the ROS 2 distribution whose message definitions (and so hashes) the bridge speaks
@@ -174,3 +177,35 @@ def tf_message(t: float, transforms: list[tuple[str, str, tuple[float, float, fl
 def twist_to_velocity(msg: Any) -> tuple[float, float, float]:
     """``(v, w, vy)`` of a Twist: linear.x, angular.z, linear.y (a planar base ignores the rest)."""
     return float(msg.linear.x), float(msg.angular.z), float(msg.linear.y)
+
+
+def _cov6(cov3) -> np.ndarray:
+    """A planar 3x3 covariance (x, y, yaw; row-major) in ROS's 6x6 (x, y, z, roll, pitch, yaw)."""
+    c3 = np.asarray(cov3, dtype=np.float64).reshape(3, 3)
+    c6 = np.zeros((6, 6), dtype=np.float64)
+    idx = np.array([0, 1, 5])
+    c6[np.ix_(idx, idx)] = c3
+    return c6.ravel()
+
+
+def pose_with_covariance_stamped(data, frame: str) -> Any:
+    """``geometry_msgs/msg/PoseWithCovarianceStamped`` from a LocalizeData (AMCL's ``amcl_pose``)."""
+    return _T["geometry_msgs/msg/PoseWithCovarianceStamped"](
+        header=_header(data.t, frame),
+        pose=_T["geometry_msgs/msg/PoseWithCovariance"](pose=_pose(*data.pose), covariance=_cov6(data.cov)),
+    )
+
+
+def path(t: float, frame: str, poses: list[tuple[float, float, float]]) -> Any:
+    """``nav_msgs/msg/Path`` through planar ``poses`` (x, y, yaw) in ``frame``."""
+    return _T["nav_msgs/msg/Path"](
+        header=_header(t, frame),
+        poses=[_T["geometry_msgs/msg/PoseStamped"](header=_header(t, frame), pose=_pose(*p)) for p in poses],
+    )
+
+
+def pose_stamped_to_goal(msg: Any) -> tuple[str, tuple[float, float, float]]:
+    """``(frame_id, (x, y, yaw))`` of a ``geometry_msgs/msg/PoseStamped`` (yaw about z)."""
+    q = msg.pose.orientation
+    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    return msg.header.frame_id, (float(msg.pose.position.x), float(msg.pose.position.y), yaw)

@@ -240,3 +240,81 @@ def test_robots_that_join_are_exported_and_robots_that_leave_take_their_topics(p
     wait_until(lambda: "0 robot(s) exported: none yet" in exp.output(), 30, "r0 withdrawn when its server stops")
     wait_until(lambda: r0_entities(exp_port) == set(), 10, "r0's graph tokens to go")
     assert exp.alive(), exp.output()
+
+
+def pose_stamped_cdr(frame: str, x: float, y: float, yaw: float) -> bytes:
+    """geometry_msgs/msg/PoseStamped by hand: stamp, frame_id, then 7 float64 aligned on 8."""
+    f = frame.encode() + b"\x00"
+    body = struct.pack("<iII", 0, 0, len(f)) + f
+    body += b"\x00" * ((-len(body)) % 8)
+    body += struct.pack("<7d", x, y, 0.0, 0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
+    return b"\x00\x01\x00\x00" + body
+
+
+def decode_pose_with_covariance_stamped(b: bytes) -> tuple[str, tuple[float, float, float], np.ndarray]:
+    body = b[4:]
+    (n,) = struct.unpack_from("<I", body, 8)
+    frame = body[12 : 12 + n - 1].decode()
+    o = 12 + n
+    o += (-o) % 8
+    x, y, _, qx, qy, qz, qw = struct.unpack_from("<7d", body, o)
+    cov = np.frombuffer(body, "<f8", 36, o + 56).reshape(6, 6)
+    assert o + 56 + 288 == len(body)
+    return frame, (x, y, math.atan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))), cov
+
+
+@pytest.fixture
+def nav_fleet(procs):
+    from rsal.client import Fabric
+    from rsal.transport import TransportArgs
+
+    port = free_port()
+    procs(rsal_cmd("sim", WORLD, "--nav", "vfh", "--listen", f"tcp/127.0.0.1:{port}"))
+    exp = procs(rsal_cmd("ros2", "--connect", f"tcp/127.0.0.1:{port}"))
+    fab = Fabric.connect(TransportArgs(connect=[f"tcp/127.0.0.1:{port}"]))
+    try:
+        fab.node("sim:*:*").wait_for("sim:simulation:0", timeout=30)
+        wait_until(
+            lambda: "r0 (scan odom tf cmd_vel amcl_pose goal_pose plan)" in exp.output(),
+            60,
+            "rsal ros2 to export r0 with its navigation stack",
+        )
+        yield port, fab
+    finally:
+        fab.close()
+
+
+def test_amcl_pose_follows_the_robot_and_goal_pose_drives_it_there_with_a_plan(nav_fleet):
+    from mrs_bridge.ros2 import types
+
+    port, fab = nav_fleet
+    amcl_key = "0/r0/amcl_pose/geometry_msgs::msg::dds_::PoseWithCovarianceStamped_/" + types.type_hash(
+        "geometry_msgs/msg/PoseWithCovarianceStamped"
+    )
+    plan_key = "0/r0/plan/nav_msgs::msg::dds_::Path_/" + types.type_hash("nav_msgs/msg/Path")
+    goal_key = "0/r0/goal_pose/geometry_msgs::msg::dds_::PoseStamped_/" + types.type_hash(
+        "geometry_msgs/msg/PoseStamped"
+    )
+    poses, plans = [], []
+    goal = (-0.5, -2.0, 0.0)
+    with (
+        stock_session(port) as s,
+        s.declare_subscriber(amcl_key, lambda m: poses.append(m.payload.to_bytes())),
+        s.declare_subscriber(plan_key, lambda m: plans.append(m.payload.to_bytes())),
+    ):
+        wait_until(lambda: poses, 20, "an amcl_pose")
+        frame, est, cov = decode_pose_with_covariance_stamped(poses[-1])
+        truth = true_pose(fab)
+        assert frame == "map" and math.hypot(est[0] - truth[0], est[1] - truth[1]) < 0.5
+        assert cov[0, 0] > 0 and cov[1, 1] > 0 and cov[5, 5] > 0 and cov[2, 2] == 0
+        s.put(goal_key, pose_stamped_cdr("map", *goal), attachment=Attachment(1, time.time_ns(), bytes(16)).to_bytes())
+        wait_until(
+            lambda: math.hypot(true_pose(fab)[0] - goal[0], true_pose(fab)[1] - goal[1]) < 0.5,
+            60,
+            "r0 at the goal_pose (ground truth)",
+        )
+        wait_until(lambda: plans, 5, "a plan")
+    paths = [types.decode(p, "nav_msgs/msg/Path") for p in plans]
+    assert all(p.header.frame_id == "map" for p in paths)
+    ends = [p.poses[-1].pose.position for p in paths if p.poses]
+    assert any(math.hypot(e.x - goal[0], e.y - goal[1]) < 0.3 for e in ends), "a plan that ends at the goal"

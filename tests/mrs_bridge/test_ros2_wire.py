@@ -19,6 +19,7 @@ PUBLISHED = {
     "sensor_msgs/msg/LaserScan": "RIHS01_64c191398013af96509d518dac71d5164f9382553fce5c1f8cca5be7924bd828",
     "nav_msgs/msg/Odometry": "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0",
     "nav_msgs/msg/OccupancyGrid": "RIHS01_8d348150c12913a31ee0ec170fbf25089e4745d17035792a1ba94d6f0bc0cfc7",
+    "geometry_msgs/msg/PoseStamped": "RIHS01_10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0cc232d73b4cd8",
     "geometry_msgs/msg/PoseWithCovarianceStamped": (
         "RIHS01_26432f9803e43727d3c8f668d1fdb3c630f548af631e2f4e31382371bfea3b6e"
     ),
@@ -80,6 +81,23 @@ def test_odometry_and_tf_carry_the_pose_as_a_yaw_quaternion():
     back = types.decode(types.encode(tf, "tf2_msgs/msg/TFMessage"), "tf2_msgs/msg/TFMessage")
     assert back.transforms[0].child_frame_id == "r0/base_link"
     assert back.transforms[0].transform.translation.y == 2.0
+
+
+def test_amcl_pose_path_and_goal_pose():
+    from rsal.interfaces.localize import LocalizeData
+
+    cov = (0.04, 0.01, 0.0, 0.01, 0.09, 0.0, 0.0, 0.0, 0.16)
+    loc = LocalizeData(3.0, (1.0, -1.0, 0.5), cov)
+    name = "geometry_msgs/msg/PoseWithCovarianceStamped"
+    m = types.decode(types.encode(types.pose_with_covariance_stamped(loc, "map"), name), name)
+    c6 = np.asarray(m.pose.covariance).reshape(6, 6)
+    assert (c6[0, 0], c6[0, 1], c6[1, 1], c6[5, 5], c6[2, 2]) == (0.04, 0.01, 0.09, 0.16, 0.0)
+    assert m.header.frame_id == "map" and m.pose.pose.position.x == 1.0
+    p = types.path(3.0, "map", [(0.0, 0.0, 0.0), (1.0, 2.0, -0.5)])
+    back = types.decode(types.encode(p, "nav_msgs/msg/Path"), "nav_msgs/msg/Path")
+    assert [(q.pose.position.x, q.pose.position.y) for q in back.poses] == [(0.0, 0.0), (1.0, 2.0)]
+    frame, goal = types.pose_stamped_to_goal(back.poses[1])
+    assert frame == "map" and goal == pytest.approx((1.0, 2.0, -0.5))
 
 
 def test_attachment_layout_is_zenohs_serialisation_of_int64_int64_bytes():
