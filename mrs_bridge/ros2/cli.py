@@ -54,6 +54,12 @@ def register(sub) -> None:
         metavar="TEMPLATE",
         help="prefix of every frame id, {robot} the robot's name (default '{robot}/': r0/odom, r0/base_link)",
     )
+    p.add_argument(
+        "--map-node",
+        default="*",
+        metavar="NODE",
+        help="node of the map device published as /map (default: the first found; '' for none)",
+    )
     p.add_argument("--map-frame", default="map", help="frame id of the shared floor plan (default map)")
     p.add_argument("--node-name", default="rsal", help="the ROS node in each robot's namespace (default rsal)")
     add_transport_args(p)
@@ -96,7 +102,13 @@ def _run(args: argparse.Namespace) -> int:
     if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", args.node_name):
         print(f"rsal ros2: --node-name {args.node_name!r} is not a ROS node name (letters, digits, _)", file=sys.stderr)
         return 1
-    config = ExportConfig(domain, tuple(args.robots), args.frame_prefix, args.node_name, args.map_frame)
+    if args.map_node and (not _CHUNK.match(args.map_node) or "**" in args.map_node):
+        print(
+            f"rsal ros2: --map-node {args.map_node!r} is not a node name or pattern (e.g. 'sim'; '' for no /map)",
+            file=sys.stderr,
+        )
+        return 1
+    config = ExportConfig(domain, tuple(args.robots), args.frame_prefix, args.node_name, args.map_frame, args.map_node)
     stop, _ = stop_on_signals()
     last: list[str] = []
 

@@ -20,6 +20,10 @@ For every robot the fabric discovers (liveliness of ``rsal/<robot>/position2d/0`
   ``/<robot>/plan`` (``nav_msgs/msg/Path``, the planner's waypoints) whenever the goal or the
   number of waypoints changes.
 
+The fleet's floor plan (the first ``map`` device found, ``sim:map:0`` under ``rsal sim``) goes out
+once as ``/map`` (``nav_msgs/msg/OccupancyGrid``, transient local like ROS's map_server: late
+subscribers get it from the publisher's cache) by a node ``/<node name>_map``.
+
 Frames are ``<prefix>odom``, ``<prefix>base_link``, ``<prefix>laser`` with the prefix
 ``<robot>/`` by default, so that one rviz2 shows the whole fleet; the map frame (``map``) is
 the fleet's shared floor plan and has no prefix. Robots that join later are
@@ -54,6 +58,7 @@ __all__ = ["Exporter", "ExportConfig"]
 log = logging.getLogger(__name__)
 
 TF_QOS = QoS(depth=100)  # tf2_ros's TransformBroadcaster: reliable, keep last 100
+MAP_QOS = QoS(durability=1, depth=1)  # nav2 map_server: reliable, transient local, keep last 1
 
 
 @dataclass(frozen=True)
@@ -66,6 +71,7 @@ class ExportConfig:
     frame_prefix: str = "{robot}/"
     node_name: str = "rsal"
     map_frame: str = "map"
+    map_node: str = "*"  # the node whose map device becomes /map ("" for none)
 
 
 class _Outbox:
@@ -179,10 +185,15 @@ class Exporter:
         ifaces = ("position2d", "laser", "localize", "planner")
         templates = [f"rsal/{r}/{iface}/*" for r in config.robots for iface in ifaces]
         self._dnode = fabric.node(*templates)
-        self._dnode.on_join(self._join)
-        self._dnode.on_leave(self._leave)
-        for a in self._dnode.devices():  # already alive before the listeners were in place
-            fabric.dispatcher.submit(self._join, a)
+        self._map: tuple[DeviceAddr, Node] | None = None
+        self._mnode = fabric.node(f"rsal/{config.map_node}/map/*") if config.map_node else None
+        for dn in (self._dnode, self._mnode):
+            if dn is None:
+                continue
+            dn.on_join(self._join)
+            dn.on_leave(self._leave)
+            for a in dn.devices():  # already alive before the listeners were in place
+                fabric.dispatcher.submit(self._join, a)
 
     def __enter__(self) -> Exporter:
         return self
@@ -217,6 +228,9 @@ class Exporter:
 
     def _join(self, addr: DeviceAddr) -> None:
         if self._closed:
+            return
+        if addr.interface == "map":
+            self._join_map(addr)
             return
         if addr.interface == "position2d" and addr.index == 0:
             self._join_base(addr)
@@ -317,6 +331,12 @@ class Exporter:
         proxy.add_listener(on_scan, inline=True)
 
     def _leave(self, addr: DeviceAddr) -> None:
+        if addr.interface == "map":
+            if self._map is not None and self._map[0] == addr:
+                self._map[1].close()
+                self._map = None
+                log.info("/map withdrawn: %s left", addr)
+            return
         r = self._robots.get(addr.node)
         if r is None or self._closed:
             return
@@ -346,6 +366,24 @@ class Exporter:
             with self._lock:
                 self._robots.pop(r.name, None)
         self._changed()
+
+    def _join_map(self, addr: DeviceAddr) -> None:
+        if self._map is not None:
+            if self._map[0] != addr:
+                log.info("%s: not exported, /map is %s already", addr, self._map[0])
+            return
+        proxy = self.fabric.device(addr)
+        try:
+            grid = proxy.get_map(timeout=10.0)
+        except Exception as e:
+            log.warning("%s: could not fetch the map (%s); /map not published", addr, e)
+            return
+        node = self.part.node("/", f"{self.config.node_name}_map")
+        pub = node.publisher("/map", "nav_msgs/msg/OccupancyGrid", MAP_QOS)
+        self._map = (addr, node)
+        # stamp 0: tf's "latest", the map holds at every time
+        self.outbox.post(pub, lambda g: types.occupancy_grid(g, 0.0, self.config.map_frame), grid)
+        log.info("/map: %s (%d x %d cells of %g m)", addr, grid.width, grid.height, grid.resolution)
 
     def _join_localize(self, addr: DeviceAddr) -> None:
         r = self._robot(addr.node)
@@ -440,6 +478,10 @@ class Exporter:
             return
         self._closed = True
         self._dnode.close()
+        if self._mnode is not None:
+            self._mnode.close()
+        if self._map is not None:
+            self._map[1].close()
         self.outbox.close()
         with self._lock:
             robots, self._robots = list(self._robots.values()), {}

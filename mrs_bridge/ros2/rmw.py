@@ -8,8 +8,9 @@ accepts the type's RIHS01 hash or Humble's ``TypeHashNotSupported`` (another has
 definition of the type: logged once and dropped), decodes the CDR and hands the message to its
 callback on Zenoh's thread (the callback must not block).
 
-Volatile QoS only: transient-local topics (``/map``, ``/tf_static``) need Zenoh's advanced
-publisher with a cache, not written yet (``docs/ros2.md``).
+A transient-local publisher (``/map``) is Zenoh's advanced publisher with a cache of ``depth``
+samples and publisher detection, plus sample-miss heartbeats when reliable, as rmw_zenoh declares
+it: a late subscriber (rmw_zenoh's advanced subscriber with history) gets the cached messages.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from collections.abc import Callable
 from typing import Any
 
 import zenoh
+import zenoh.ext as zext
 
 from . import types
 from .wire import DEFAULT_QOS, Attachment, Entity, Kind, QoS, WireError, topic_key, topic_keyexpr_any_hash
@@ -124,9 +126,21 @@ class Publisher:
         self.gid = entity.gid
         self.sequence = 0  # the number of the last message put; the first is 1
         s = node.part.session
-        self._pub = s.declare_publisher(
-            self.key, encoding=zenoh.Encoding.APPLICATION_CDR, congestion_control=zenoh.CongestionControl.DROP
-        )
+        q = entity.qos
+        if q.durability == 1:  # transient local
+            self._pub = zext.declare_advanced_publisher(
+                s,
+                self.key,
+                encoding=zenoh.Encoding.APPLICATION_CDR,
+                congestion_control=zenoh.CongestionControl.DROP,
+                cache=zext.CacheConfig(max(1, q.depth)),
+                publisher_detection=True,
+                sample_miss_detection=zext.MissDetectionConfig(sporadic_heartbeat=0.5) if q.reliability == 1 else None,
+            )
+        else:
+            self._pub = s.declare_publisher(
+                self.key, encoding=zenoh.Encoding.APPLICATION_CDR, congestion_control=zenoh.CongestionControl.DROP
+            )
         self._token = s.liveliness().declare_token(entity.token)
         self._lock = threading.Lock()
         self.closed = False

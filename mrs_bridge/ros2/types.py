@@ -43,6 +43,7 @@ __all__ = [
     "pose_with_covariance_stamped",
     "path",
     "pose_stamped_to_goal",
+    "occupancy_grid",
 ]
 
 #: the ROS 2 distribution whose message definitions (and so hashes) the bridge speaks
@@ -209,3 +210,19 @@ def pose_stamped_to_goal(msg: Any) -> tuple[str, tuple[float, float, float]]:
     q = msg.pose.orientation
     yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
     return msg.header.frame_id, (float(msg.pose.position.x), float(msg.pose.position.y), yaw)
+
+
+def occupancy_grid(m, t: float, frame: str) -> Any:
+    """``nav_msgs/msg/OccupancyGrid`` from a MapData: Player's cells (-1 free, 0 unknown, +1
+    occupied; row-major from the bottom row, as ROS's) as ROS's (0 free, -1 unknown, 100 occupied),
+    the origin the bottom-left corner's world position."""
+    cells = np.asarray(m.cells, dtype=np.int8).reshape(-1)
+    data = np.where(cells > 0, 100, np.where(cells < 0, 0, -1)).astype(np.int8)
+    info = _T["nav_msgs/msg/MapMetaData"](
+        map_load_time=stamp(t),
+        resolution=float(m.resolution),
+        width=int(m.width),
+        height=int(m.height),
+        origin=_pose(float(m.origin[0]), float(m.origin[1]), 0.0),
+    )
+    return _T["nav_msgs/msg/OccupancyGrid"](header=_header(t, frame), info=info, data=data)

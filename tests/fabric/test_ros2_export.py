@@ -152,6 +152,10 @@ def test_graph_tokens_show_the_node_its_publishers_and_subscription(fleet):
     }
     scan = next(e for e in ents if e.topic == "/r0/scan")
     assert scan.type_hash == SCAN_HASH and scan.qos.reliability == 2 and scan.qos.depth == 5
+    grid = next(e for e in ents if e.topic == "/map")
+    assert (grid.kind, grid.namespace, grid.node) == (Kind.PUBLISHER, "/", "rsal_map")
+    assert (grid.qos.reliability, grid.qos.durability, grid.qos.depth) == (1, 1, 1)  # transient local
+    assert str(grid.token).endswith("/:1:,1:,:,:,,")
 
 
 def true_pose(fab) -> tuple[float, float, float]:
@@ -318,3 +322,38 @@ def test_amcl_pose_follows_the_robot_and_goal_pose_drives_it_there_with_a_plan(n
     assert all(p.header.frame_id == "map" for p in paths)
     ends = [p.poses[-1].pose.position for p in paths if p.poses]
     assert any(math.hypot(e.x - goal[0], e.y - goal[1]) < 0.3 for e in ends), "a plan that ends at the goal"
+
+
+def test_the_map_is_published_transient_local_and_a_late_subscriber_gets_it(fleet):
+    import zenoh.ext as zext
+
+    from mrs_bridge.ros2 import types
+
+    port, fab, _ = fleet
+    grid = fab.device("sim:map:0").get_map()
+    key = "0/map/nav_msgs::msg::dds_::OccupancyGrid_/" + types.type_hash("nav_msgs/msg/OccupancyGrid")
+    got = []
+    # the exporter published the map once, long before this subscriber: the publisher's cache answers
+    with stock_session(port) as s:
+        sub = zext.declare_advanced_subscriber(
+            s, key, lambda m: got.append(m.payload.to_bytes()), history=zext.HistoryConfig(detect_late_publishers=True)
+        )
+        wait_until(lambda: got, 10, "the map from the publisher's cache")
+        sub.undeclare()
+    body = got[0][4:]
+    (n,) = struct.unpack_from("<I", body, 8)
+    assert body[12 : 12 + n - 1] == b"map"
+    o = 12 + n
+    o += (-o) % 4
+    _, _, res, w, h = struct.unpack_from("<iIfII", body, o)
+    o += 20
+    o += (-o) % 8
+    ox, oy = struct.unpack_from("<2d", body, o)
+    o += 56
+    (k,) = struct.unpack_from("<I", body, o)
+    cells = np.frombuffer(body, np.int8, k, o + 4)
+    assert (w, h, k) == (grid.width, grid.height, grid.width * grid.height)
+    assert res == pytest.approx(grid.resolution) and (ox, oy) == pytest.approx(grid.origin)
+    player = np.asarray(grid.cells, dtype=np.int8).reshape(-1)
+    assert np.array_equal(cells == 100, player > 0) and np.array_equal(cells == 0, player < 0)
+    assert np.array_equal(cells == -1, player == 0) and (cells == 100).any() and (cells == 0).any()
