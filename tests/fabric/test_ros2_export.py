@@ -166,6 +166,13 @@ def moved(a, b, eps: float = 1e-4) -> bool:
     return math.hypot(a[0] - b[0], a[1] - b[1]) > eps or abs(a[2] - b[2]) > eps
 
 
+def still(fab, window: float = 0.3) -> bool:
+    """r0's true pose does not change over ``window`` s of wall time (three simulation steps)."""
+    a = true_pose(fab)
+    time.sleep(window)
+    return not moved(a, true_pose(fab))
+
+
 def twist_cdr(v: float, w: float) -> bytes:
     return b"\x00\x01\x00\x00" + struct.pack("<6d", v, 0.0, 0.0, 0.0, 0.0, w)
 
@@ -357,3 +364,60 @@ def test_the_map_is_published_transient_local_and_a_late_subscriber_gets_it(flee
     player = np.asarray(grid.cells, dtype=np.int8).reshape(-1)
     assert np.array_equal(cells == 100, player > 0) and np.array_equal(cells == 0, player < 0)
     assert np.array_equal(cells == -1, player == 0) and (cells == 100).any() and (cells == 0).any()
+
+
+GHOST = """
+[server]
+node = "ghost"
+
+[[driver]]
+name = "ros2"
+provides = ["position2d:0", "laser:0"]
+namespace = "/r0"
+laser_pose = [0.13, 0, 0]
+"""
+
+
+def test_import_loop_sim_export_import_drives_the_simulated_robot(procs, tmp_path):
+    """sim -> rsal ros2 (export r0) -> ros2 driver (import /r0 as ghost) -> RSAL client: the
+    ghost's laser is r0's laser, and the ghost's velocity commands move r0 (ground truth)."""
+    from rsal.client import Fabric
+    from rsal.transport import TransportArgs
+
+    port = free_port()
+    cfg = tmp_path / "ghost.toml"
+    cfg.write_text(GHOST)
+    ep = f"tcp/127.0.0.1:{port}"
+    procs(rsal_cmd("sim", WORLD, "--listen", ep))
+    procs(rsal_cmd("ros2", "--robots", "r0", "--connect", ep))
+    procs(rsal_cmd("serve", str(cfg), "--listen", f"tcp/127.0.0.1:{free_port()}", "--connect", ep))
+    with Fabric.connect(TransportArgs(connect=[ep])) as fab:
+        fab.node("ghost:*:*").wait_for("ghost:*:*", count=2, timeout=60)
+        fab.node("sim:*:*").wait_for("sim:simulation:0", timeout=30)
+        real, ghost = fab.device("r0:laser:0"), fab.device("ghost:laser:0")
+        scans: dict[float, np.ndarray] = {}
+        real.add_listener(lambda m: scans.__setitem__(round(m.t, 6), np.array(m.ranges)), inline=True)
+        g = ghost.wait_for_data(10)
+        wait_until(lambda: round(ghost.latest.t, 6) in scans, 5, "the ghost's scan among r0's")
+        g = ghost.latest
+        np.testing.assert_array_equal(g.ranges, scans[round(g.t, 6)])
+        sensor = real.describe().geometry["sensors"][0]
+        gs = ghost.describe().geometry
+        assert gs["sensors"][0]["samples"] == sensor["samples"] and gs["pose"][0] == pytest.approx(0.13)
+        assert g.angle_min == pytest.approx(-sensor["fov"] / 2, abs=1e-5)
+
+        base = fab.device("ghost:position2d:0")
+        start = true_pose(fab)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 1.5:
+            base.set_velocity(0.0, 0.8, hold=False)
+            time.sleep(0.1)
+        turned = true_pose(fab)
+        assert abs(math.remainder(turned[2] - start[2], math.tau)) > 0.3, f"r0 turned: {start} -> {turned}"
+        # the ghost's odometry is r0's, through ROS
+        odo = base.wait_for_data(5)
+        r0odo = fab.device("r0:position2d:0").wait_for_data(5)
+        assert abs(math.remainder(odo.pose[2] - r0odo.pose[2], math.tau)) < 0.2
+        # commands stop: the ghost's own command timeout reports it, and r0 stops
+        wait_until(lambda: base.latest.timed_out, 5, "the ghost base to report its command timeout")
+        wait_until(lambda: still(fab), 5, "r0 to stop (ground truth)")
