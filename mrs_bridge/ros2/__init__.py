@@ -2,6 +2,6 @@
 
 ``wire`` holds rmw_zenoh's keys, attachment, QoS strings and graph tokens; ``types`` the message
 types, their RIHS01 hashes, CDR and the builders from RSAL data; ``export`` the exporter behind
-``rsal ros2`` (``cli``); ``driver`` the ``ros2`` import driver of ``rsal serve``. What maps to
+``rsal ros2`` (``cli``); ``driver`` the ``ros2`` import driver of ``rsal serve``; ``bag`` ``rsal rosbag2``. What maps to
 what: ``docs/ros2.md``.
 """

@@ -421,3 +421,39 @@ def test_import_loop_sim_export_import_drives_the_simulated_robot(procs, tmp_pat
         # commands stop: the ghost's own command timeout reports it, and r0 stops
         wait_until(lambda: base.latest.timed_out, 5, "the ghost base to report its command timeout")
         wait_until(lambda: still(fab), 5, "r0 to stop (ground truth)")
+
+
+def test_a_recording_becomes_a_rosbag2_bag_that_a_stock_mcap_reader_decodes(procs, tmp_path):
+    from mcap.reader import make_reader
+
+    from rsal.client import Fabric
+    from rsal.transport import TransportArgs
+
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    procs(rsal_cmd("sim", WORLD, "--listen", ep))
+    with Fabric.connect(TransportArgs(connect=[ep])) as fab:
+        fab.node("r0:*:*").wait_for("r0:position2d:0", timeout=30)
+    run = tmp_path / "run.mcap"
+    rec = procs(rsal_cmd("record", "r0:*:*", "-o", str(run), "--duration", "2", "--connect", ep))
+    wait_until(lambda: not rec.alive(), 60, "rsal record to finish")
+    assert rec.p.returncode == 0, rec.output()
+    bag = tmp_path / "bag"
+    conv = procs(rsal_cmd("rosbag2", str(run), "-o", str(bag)))
+    wait_until(lambda: not conv.alive(), 60, "rsal rosbag2 to finish")
+    assert conv.p.returncode == 0 and "/r0/scan" in conv.output(), conv.output()
+    meta = (bag / "metadata.yaml").read_text()
+    assert "storage_identifier: mcap" in meta and "sensor_msgs/msg/LaserScan" in meta
+    assert SCAN_HASH in meta  # rosbag2 v9 keeps each topic's type hash
+    with open(next(bag.glob("*.mcap")), "rb") as f:
+        msgs = list(make_reader(f).iter_messages(topics=["/r0/scan"]))
+    assert len(msgs) >= 10
+    schema, channel, message = msgs[-1]
+    assert (schema.name, schema.encoding, channel.message_encoding) == ("sensor_msgs/msg/LaserScan", "ros2msg", "cdr")
+    m = decode_laser_scan(message.data)
+    assert m["frame"] == "r0/laser" and len(m["ranges"]) == 682
+    assert message.log_time == pytest.approx(m["t"] * 1e9, abs=1e3)  # bag time = the scan's own time
+    # a second conversion to the same place is refused with one line
+    again = procs(rsal_cmd("rosbag2", str(run), "-o", str(bag)))
+    wait_until(lambda: not again.alive(), 60, "rsal rosbag2 to refuse")
+    assert again.p.returncode == 1 and "exists; rosbag2 writes a new directory" in again.output()
