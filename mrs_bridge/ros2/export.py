@@ -271,13 +271,19 @@ class Exporter:
         proxy.add_listener(on_odom, inline=True)
 
     def _cmd_vel_handler(self, r: _Robot) -> Callable:
-        warned = [False]
+        warned = [False, False]
 
         def on_twist(msg, att) -> None:  # a Zenoh thread: hand the put to the dispatcher
             base = r.base
             if base is None:
                 return
             v, w, vy = types.twist_to_velocity(msg)
+            if vy != 0.0 and not warned[1]:
+                warned[1] = True
+                log.warning(
+                    "/%s/cmd_vel: linear.y %.3g m/s ignored: the bases are differential drives (said once)", r.name, vy
+                )
+            vy = 0.0
             if base.limits is not None:
                 vmax, wmax = base.limits
                 cv, cw = max(-vmax, min(vmax, v)), max(-wmax, min(wmax, w))

@@ -173,28 +173,33 @@ def still(fab, window: float = 0.3) -> bool:
     return not moved(a, true_pose(fab))
 
 
-def twist_cdr(v: float, w: float) -> bytes:
-    return b"\x00\x01\x00\x00" + struct.pack("<6d", v, 0.0, 0.0, 0.0, 0.0, w)
+def twist_cdr(v: float, w: float, vy: float = 0.0) -> bytes:
+    return b"\x00\x01\x00\x00" + struct.pack("<6d", v, vy, 0.0, 0.0, 0.0, w)
 
 
-@pytest.mark.parametrize("type_hash", [TWIST_HASH, "TypeHashNotSupported"], ids=["jazzy", "humble"])
-def test_a_twist_on_cmd_vel_moves_r0_and_r0_stops_when_the_twists_stop(fleet, type_hash):
-    port, fab, _ = fleet
+@pytest.mark.parametrize(
+    ("type_hash", "w", "vy"),
+    [(TWIST_HASH, 0.8, 0.0), ("TypeHashNotSupported", 50.0, 0.2)],
+    ids=["jazzy", "humble-over-the-limits"],
+)
+def test_a_twist_on_cmd_vel_moves_r0_and_r0_stops_when_the_twists_stop(fleet, type_hash, w, vy):
+    """A Twist over the base's max_speed is clipped and its sideways speed dropped, not refused."""
+    port, fab, exp = fleet
     key = f"0/r0/cmd_vel/{TWIST_TYPE}/{type_hash}"
     gid = bytes(range(16))
     with stock_session(port) as s:
         seq = 0
 
-        def put_for(seconds: float, w: float) -> None:
+        def put_for(seconds: float) -> None:
             nonlocal seq
             end = time.monotonic() + seconds
             while time.monotonic() < end:
                 seq += 1
-                s.put(key, twist_cdr(0.0, w), attachment=Attachment(seq, time.time_ns(), gid).to_bytes())
+                s.put(key, twist_cdr(0.0, w, vy), attachment=Attachment(seq, time.time_ns(), gid).to_bytes())
                 time.sleep(0.1)  # the commander's own 10 Hz rate, as teleop_twist_keyboard's
 
         start = true_pose(fab)
-        put_for(1.5, 0.8)
+        put_for(1.5)
         turned = true_pose(fab)
         assert abs(math.remainder(turned[2] - start[2], math.tau)) > 0.3, f"r0 turned: {start} -> {turned}"
     # no more Twists: the server's command timeout (0.5 s) stops r0
@@ -209,6 +214,8 @@ def test_a_twist_on_cmd_vel_moves_r0_and_r0_stops_when_the_twists_stop(fleet, ty
             settled = time.monotonic() - t0
         last = p
     assert settled is not None and settled < 1.5, f"r0 still moving {time.monotonic() - t0:.1f} s after the last Twist"
+    if vy:
+        assert "over the base's max_speed" in exp.output() and "linear.y 0.2 m/s ignored" in exp.output()
 
 
 def test_a_twist_without_the_attachment_or_with_another_hash_is_dropped(fleet):
