@@ -61,6 +61,7 @@ def register(sub) -> None:
         help="node of the map device published as /map (default: the first found; '' for none)",
     )
     p.add_argument("--map-frame", default="map", help="frame id of the shared floor plan (default map)")
+    p.add_argument("--no-clock", action="store_true", help="no /clock, even when a simulator runs")
     p.add_argument("--node-name", default="rsal", help="the ROS node in each robot's namespace (default rsal)")
     add_transport_args(p)
     p.set_defaults(func=_run)
@@ -108,12 +109,18 @@ def _run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
-    config = ExportConfig(domain, tuple(args.robots), args.frame_prefix, args.node_name, args.map_frame, args.map_node)
+    config = ExportConfig(
+        domain, tuple(args.robots), args.frame_prefix, args.node_name, args.map_frame, args.map_node, not args.no_clock
+    )
     stop, _ = stop_on_signals()
     last: list[str] = []
 
-    def progress(robots: dict[str, list[str]]) -> None:
+    def progress(ex) -> None:
+        robots = ex.robots()
         line = ", ".join(f"{n} ({' '.join(t)})" for n, t in robots.items()) or "none yet"
+        fleet = ex.fleet_topics()
+        if fleet:
+            line += f"; fleet: {' '.join('/' + t for t in fleet)}"
         if line != (last[0] if last else None):
             last[:] = [line]
             print(f"rsal ros2: domain {domain}: {len(robots)} robot(s) exported: {line}", flush=True)

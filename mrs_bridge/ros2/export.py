@@ -20,9 +20,7 @@ For every robot the fabric discovers (liveliness of ``rsal/<robot>/position2d/0`
   ``/<robot>/plan`` (``nav_msgs/msg/Path``, the planner's waypoints) whenever the goal or the
   number of waypoints changes.
 
-The fleet's floor plan (the first ``map`` device found, ``sim:map:0`` under ``rsal sim``) goes out
-once as ``/map`` (``nav_msgs/msg/OccupancyGrid``, transient local like ROS's map_server: late
-subscribers get it from the publisher's cache) by a node ``/<node name>_map``.
+The fleet-wide ``/map`` and ``/clock`` come from :mod:`mrs_bridge.ros2.fleet`.
 
 Frames are ``<prefix>odom``, ``<prefix>base_link``, ``<prefix>laser`` with the prefix
 ``<robot>/`` by default, so that one rviz2 shows the whole fleet; the map frame (``map``) is
@@ -50,6 +48,7 @@ from rsal.interfaces.position2d import VelocityCmd
 from rsal.keys import DeviceAddr
 
 from . import types
+from .fleet import FleetTopics
 from .rmw import Node, Participant, Publisher, Subscription
 from .wire import DEFAULT_QOS, SENSOR_QOS, QoS
 
@@ -58,7 +57,6 @@ __all__ = ["Exporter", "ExportConfig"]
 log = logging.getLogger(__name__)
 
 TF_QOS = QoS(depth=100)  # tf2_ros's TransformBroadcaster: reliable, keep last 100
-MAP_QOS = QoS(durability=1, depth=1)  # nav2 map_server: reliable, transient local, keep last 1
 
 
 @dataclass(frozen=True)
@@ -72,6 +70,7 @@ class ExportConfig:
     node_name: str = "rsal"
     map_frame: str = "map"
     map_node: str = "*"  # the node whose map device becomes /map ("" for none)
+    clock: bool = True  # /clock from a simulation device, when one runs
 
 
 class _Outbox:
@@ -174,6 +173,7 @@ class Exporter:
     """Export the robots of a fabric to a ROS 2 domain. Use as a context manager."""
 
     def __init__(self, fabric: Fabric, config: ExportConfig = ExportConfig(), on_change: Callable | None = None):
+        """``on_change(exporter)`` after every change of what is exported (dispatcher thread)."""
         self.fabric = fabric
         self.config = config
         self.part = Participant(fabric.session, config.domain)
@@ -185,21 +185,22 @@ class Exporter:
         ifaces = ("position2d", "laser", "localize", "planner")
         templates = [f"rsal/{r}/{iface}/*" for r in config.robots for iface in ifaces]
         self._dnode = fabric.node(*templates)
-        self._map: tuple[DeviceAddr, Node] | None = None
-        self._mnode = fabric.node(f"rsal/{config.map_node}/map/*") if config.map_node else None
-        for dn in (self._dnode, self._mnode):
-            if dn is None:
-                continue
-            dn.on_join(self._join)
-            dn.on_leave(self._leave)
-            for a in dn.devices():  # already alive before the listeners were in place
-                fabric.dispatcher.submit(self._join, a)
+        self._dnode.on_join(self._join)
+        self._dnode.on_leave(self._leave)
+        for a in self._dnode.devices():  # already alive before the listeners were in place
+            fabric.dispatcher.submit(self._join, a)
+        self.fleet = FleetTopics(self)
 
     def __enter__(self) -> Exporter:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    def fleet_topics(self) -> list[str]:
+        """The fleet-wide topics exported now (``map``, ``clock``)."""
+        fleet = getattr(self, "fleet", None)  # None while __init__ runs and a join comes in
+        return fleet.topics() if fleet is not None else []
 
     def robots(self) -> dict[str, list[str]]:
         """Exported robots and their topics (relative to ``/<robot>``)."""
@@ -228,9 +229,6 @@ class Exporter:
 
     def _join(self, addr: DeviceAddr) -> None:
         if self._closed:
-            return
-        if addr.interface == "map":
-            self._join_map(addr)
             return
         if addr.interface == "position2d" and addr.index == 0:
             self._join_base(addr)
@@ -337,12 +335,6 @@ class Exporter:
         proxy.add_listener(on_scan, inline=True)
 
     def _leave(self, addr: DeviceAddr) -> None:
-        if addr.interface == "map":
-            if self._map is not None and self._map[0] == addr:
-                self._map[1].close()
-                self._map = None
-                log.info("/map withdrawn: %s left", addr)
-            return
         r = self._robots.get(addr.node)
         if r is None or self._closed:
             return
@@ -372,24 +364,6 @@ class Exporter:
             with self._lock:
                 self._robots.pop(r.name, None)
         self._changed()
-
-    def _join_map(self, addr: DeviceAddr) -> None:
-        if self._map is not None:
-            if self._map[0] != addr:
-                log.info("%s: not exported, /map is %s already", addr, self._map[0])
-            return
-        proxy = self.fabric.device(addr)
-        try:
-            grid = proxy.get_map(timeout=10.0)
-        except Exception as e:
-            log.warning("%s: could not fetch the map (%s); /map not published", addr, e)
-            return
-        node = self.part.node("/", f"{self.config.node_name}_map")
-        pub = node.publisher("/map", "nav_msgs/msg/OccupancyGrid", MAP_QOS)
-        self._map = (addr, node)
-        # stamp 0: tf's "latest", the map holds at every time
-        self.outbox.post(pub, lambda g: types.occupancy_grid(g, 0.0, self.config.map_frame), grid)
-        log.info("/map: %s (%d x %d cells of %g m)", addr, grid.width, grid.height, grid.resolution)
 
     def _join_localize(self, addr: DeviceAddr) -> None:
         r = self._robot(addr.node)
@@ -474,7 +448,7 @@ class Exporter:
     def _changed(self) -> None:
         if self.on_change is not None:
             try:
-                self.on_change(self.robots())
+                self.on_change(self)
             except Exception:
                 log.exception("the exporter's change listener failed")
 
@@ -484,10 +458,7 @@ class Exporter:
             return
         self._closed = True
         self._dnode.close()
-        if self._mnode is not None:
-            self._mnode.close()
-        if self._map is not None:
-            self._map[1].close()
+        self.fleet.close()
         self.outbox.close()
         with self._lock:
             robots, self._robots = list(self._robots.values()), {}

@@ -90,7 +90,11 @@ def fleet():
         fab.node("r0:*:*").wait_for("r0:laser:0", timeout=30)
         fab.node("sim:*:*").wait_for("sim:simulation:0", timeout=30)
         exp = started[1]
-        wait_until(lambda: "r0 (scan odom tf cmd_vel)" in exp.output() or not exp.alive(), 30, "rsal ros2 to export r0")
+        wait_until(
+            lambda: "r0 (scan odom tf cmd_vel); fleet: /map /clock" in exp.output() or not exp.alive(),
+            30,
+            "rsal ros2 to export r0, the map and the clock",
+        )
         assert exp.alive(), exp.output()
         yield port, fab, exp
     finally:
@@ -140,20 +144,26 @@ def test_a_stock_subscriber_on_the_exact_key_receives_laser_scans(fleet):
 
 def test_graph_tokens_show_the_node_its_publishers_and_subscription(fleet):
     port, _, _ = fleet
-    with stock_session(port) as s:
-        ents = [Entity.parse(str(r.ok.key_expr)) for r in s.liveliness().get("@ros2_lv/0/**", timeout=5)]
-    mine = {(e.kind, e.topic, e.type) for e in ents if e.namespace == "/r0" and e.node == "rsal"}
-    assert mine == {
+    want = {
         (Kind.NODE, "", ""),
         (Kind.PUBLISHER, "/r0/scan", "sensor_msgs::msg::dds_::LaserScan_"),
         (Kind.PUBLISHER, "/r0/odom", "nav_msgs::msg::dds_::Odometry_"),
         (Kind.PUBLISHER, "/tf", "tf2_msgs::msg::dds_::TFMessage_"),
         (Kind.SUBSCRIPTION, "/r0/cmd_vel", TWIST_TYPE),
     }
+    seen: list = []
+    with stock_session(port) as s:
+
+        def graph():  # a new session sees the exporter's tokens once its routes are in
+            seen[:] = [Entity.parse(str(r.ok.key_expr)) for r in s.liveliness().get("@ros2_lv/0/**", timeout=2)]
+            return {(e.kind, e.topic, e.type) for e in seen if e.namespace == "/r0" and e.node == "rsal"} == want
+
+        wait_until(graph, 15, "r0's node, publishers and subscription in the graph", interval=0.2)
+    ents = list(seen)
     scan = next(e for e in ents if e.topic == "/r0/scan")
     assert scan.type_hash == SCAN_HASH and scan.qos.reliability == 2 and scan.qos.depth == 5
     grid = next(e for e in ents if e.topic == "/map")
-    assert (grid.kind, grid.namespace, grid.node) == (Kind.PUBLISHER, "/", "rsal_map")
+    assert (grid.kind, grid.namespace, grid.node) == (Kind.PUBLISHER, "/", "rsal")
     assert (grid.qos.reliability, grid.qos.durability, grid.qos.depth) == (1, 1, 1)  # transient local
     assert str(grid.token).endswith("/:1:,1:,:,:,,")
 
@@ -464,3 +474,25 @@ def test_a_recording_becomes_a_rosbag2_bag_that_a_stock_mcap_reader_decodes(proc
     again = procs(rsal_cmd("rosbag2", str(run), "-o", str(bag)))
     wait_until(lambda: not again.alive(), 60, "rsal rosbag2 to refuse")
     assert again.p.returncode == 1 and "exists; rosbag2 writes a new directory" in again.output()
+
+
+def test_clock_carries_the_simulation_time_the_stamps_are_in(fleet):
+    from mrs_bridge.ros2 import types
+
+    port, fab, _ = fleet
+    clock_key = "0/clock/rosgraph_msgs::msg::dds_::Clock_/" + types.type_hash("rosgraph_msgs/msg/Clock")
+    ticks: list[float] = []
+    with (
+        stock_session(port) as s,
+        s.declare_subscriber(
+            clock_key,
+            lambda m: ticks.append(
+                sum(x * k for x, k in zip(struct.unpack_from("<iI", m.payload.to_bytes(), 4), (1, 1e-9), strict=True))
+            ),
+        ),
+    ):
+        wait_until(lambda: len(ticks) >= 3, 10, "three /clock messages")
+    sim_t = fab.device("sim:simulation:0").wait_for_data(5).t
+    assert ticks == sorted(ticks) and abs(ticks[-1] - sim_t) < 2.0
+    odom_t = fab.device("r0:position2d:0").wait_for_data(5).t
+    assert abs(odom_t - sim_t) < 2.0  # the robots' stamps are on the same clock
