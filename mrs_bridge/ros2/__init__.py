@@ -2,6 +2,7 @@
 
 ``wire`` holds rmw_zenoh's keys, attachment, QoS strings and graph tokens; ``types`` the message
 types, their RIHS01 hashes, CDR and the builders from RSAL data; ``export`` the exporter behind
-``rsal ros2`` (``cli``); ``driver`` the ``ros2`` import driver of ``rsal serve``; ``bag`` ``rsal rosbag2``. What maps to
+``rsal ros2`` (``cli``) and the ``ros2_export`` driver (``export_driver``), with ``fleet`` for
+``/map`` and ``/clock``; ``driver`` the ``ros2`` import driver of ``rsal serve``; ``bag`` ``rsal rosbag2``. What maps to
 what: ``docs/ros2.md``.
 """

@@ -496,3 +496,50 @@ def test_clock_carries_the_simulation_time_the_stamps_are_in(fleet):
     assert ticks == sorted(ticks) and abs(ticks[-1] - sim_t) < 2.0
     odom_t = fab.device("r0:position2d:0").wait_for_data(5).t
     assert abs(odom_t - sim_t) < 2.0  # the robots' stamps are on the same clock
+
+
+SERVER_WITH_EXPORT = """
+[server]
+node = "sim"
+
+[[driver]]
+name = "simulation"
+provides = ["simulation:0"]
+worldfile = "{world}"
+
+[[driver]]
+name = "sim"
+model = "r0"
+provides = ["r0:position2d:0", "r0:laser:0"]
+
+[[driver]]
+name = "ros2_export"
+robots = ["r0"]
+"""
+
+
+def test_the_exporter_as_a_driver_in_the_robots_own_server(procs, tmp_path):
+    from rsal.client import Fabric
+    from rsal.transport import TransportArgs
+
+    cfg = tmp_path / "r0-ros2.toml"
+    cfg.write_text(SERVER_WITH_EXPORT.format(world=WORLD))
+    port = free_port()
+    srv = procs(rsal_cmd("serve", str(cfg), "--listen", f"tcp/127.0.0.1:{port}"))
+    wait_until(lambda: "r0 (scan odom tf cmd_vel)" in srv.output() or not srv.alive(), 60, "the server to export r0")
+    got: list[bytes] = []
+    with Fabric.connect(TransportArgs(connect=[f"tcp/127.0.0.1:{port}"])) as fab, stock_session(port) as s:
+        with s.declare_subscriber(SCAN_KEY, lambda m: got.append(m.payload.to_bytes())):
+            wait_until(lambda: got, 15, "a LaserScan from the server's exporter")
+        assert decode_laser_scan(got[-1])["frame"] == "r0/laser"
+        start, seq = true_pose(fab), 0
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 1.5:
+            seq += 1
+            s.put(
+                f"0/r0/cmd_vel/{TWIST_TYPE}/{TWIST_HASH}",
+                twist_cdr(0.0, 0.8),
+                attachment=Attachment(seq, time.time_ns(), bytes(16)).to_bytes(),
+            )
+            time.sleep(0.1)
+        assert abs(math.remainder(true_pose(fab)[2] - start[2], math.tau)) > 0.3, "r0 turned (ground truth)"

@@ -42,3 +42,21 @@ def test_configuration_errors_are_one_line(extra, match):
 def test_a_driver_that_provides_something_else_is_refused():
     with pytest.raises(Exception, match="cannot provide 'sonar'"):
         make('namespace = "/r5"', provides='["r5:sonar:0"]')
+
+
+def test_the_export_driver_provides_nothing_and_checks_its_parameters():
+    from mrs_bridge.ros2.export_driver import Ros2Export
+
+    def make_export(extra: str):
+        cfg = parse_config(f'[[driver]]\nname = "ros2_export"\n{extra}\n', source="cfg/ros.toml")
+        return Ros2Export(cfg.drivers[0], None)
+
+    d = make_export('robots = ["r0", "r1*"]\ndomain = 4')
+    assert d.config.robots == ("r0", "r1*") and d.config.domain == 4 and d.cfg.provides == []
+    for extra, match in (
+        ('robots = ["r/0"]', r"robots = \['r/0'\] must be robot names or patterns"),
+        ('node_name = "my-node"', r"node_name = 'my-node' must be a ROS node name"),
+        ('frame_prefix = "{ns}/"', r"frame_prefix = '\{ns\}/' may only use \{robot\}"),
+    ):
+        with pytest.raises(ConfigError, match=match):
+            make_export(extra)
