@@ -1,11 +1,12 @@
 """The exporter behind ``rsal ros2``: the RSAL fleet as ROS 2 nodes on rmw_zenoh's wire.
 
 For every robot the fabric discovers (liveliness of ``rsal/<robot>/position2d/0``,
-``.../laser/<i>``, ``.../localize/0``, ``.../planner/0``; thesis 3.5's DeviceNode), one ROS node
+``.../laser/<i>``, ``.../sonar/<i>``, ``.../localize/0``, ``.../planner/0``; thesis 3.5's DeviceNode), one ROS node
 ``/<robot>/<node name>``:
 
 - publishes ``/<robot>/scan`` (``sensor_msgs/msg/LaserScan``, sensor-data QoS) from ``laser:0``
   (``scan_<i>`` for ``laser:<i>``);
+- publishes ``/<robot>/sonar_<k>`` (``sensor_msgs/msg/Range``) per transducer of ``sonar:0``;
 - publishes ``/<robot>/odom`` (``nav_msgs/msg/Odometry``) from ``position2d:0`` and, with each
   odometry message, ``/tf`` (``tf2_msgs/msg/TFMessage``): ``odom -> base_link`` and
   ``base_link -> laser`` (the laser's mount from its ``describe`` geometry);
@@ -45,11 +46,12 @@ from rsal import geometry
 from rsal.client import Fabric
 from rsal.data import Position
 from rsal.interfaces.position2d import VelocityCmd
+from rsal.interfaces.ranger import RangerGeometry
 from rsal.keys import DeviceAddr
 
 from . import types
 from .fleet import FleetTopics
-from .rmw import Node, Participant, Publisher, Subscription
+from .rmw import Node, Outbox, Participant, Publisher, Subscription
 from .wire import DEFAULT_QOS, SENSOR_QOS, QoS
 
 __all__ = ["Exporter", "ExportConfig"]
@@ -73,47 +75,6 @@ class ExportConfig:
     clock: bool = True  # /clock from a simulation device, when one runs
 
 
-class _Outbox:
-    """The latest (build, data) per publisher and slot; one thread builds, encodes and puts them
-    (a build that returns None puts nothing)."""
-
-    def __init__(self):
-        self._pending: dict[tuple[Publisher, int], tuple[Callable[[Any], Any], Any]] = {}
-        self._cond = threading.Condition()
-        self._closed = False
-        self.sent = 0
-        self._thread = threading.Thread(target=self._run, name="ros2-export", daemon=True)
-        self._thread.start()
-
-    def post(self, pub: Publisher, build: Callable[[Any], Any], data: Any, slot: int = 0) -> None:
-        with self._cond:
-            self._pending[(pub, slot)] = (build, data)
-            self._cond.notify()
-
-    def _run(self) -> None:
-        while True:
-            with self._cond:
-                while not self._pending and not self._closed:
-                    self._cond.wait()
-                if self._closed:
-                    return
-                batch, self._pending = self._pending, {}
-            for (pub, _), (build, data) in batch.items():
-                try:
-                    msg = build(data)
-                    if msg is not None:
-                        pub.publish(msg)
-                        self.sent += 1
-                except Exception:
-                    log.exception("%s: could not publish", pub.entity.topic)
-
-    def close(self) -> None:
-        with self._cond:
-            self._closed = True
-            self._cond.notify()
-        self._thread.join(5.0)
-
-
 @dataclass
 class _Laser:
     addr: DeviceAddr
@@ -121,6 +82,18 @@ class _Laser:
     pub: Publisher
     frame: str
     mount: tuple[float, float, float]
+    listener: Callable
+
+
+@dataclass
+class _Sonar:
+    """A sonar ring: one Range topic and frame per transducer."""
+
+    addr: DeviceAddr
+    proxy: Any
+    pubs: list[Publisher]
+    frames: list[str]
+    mounts: list[tuple[float, float, float]]
     listener: Callable
 
 
@@ -152,11 +125,13 @@ class _Robot:
     node: Node
     base: _Base | None = None
     lasers: dict[int, _Laser] = field(default_factory=dict)
+    sonars: dict[int, _Sonar] = field(default_factory=dict)
     localize: _Nav | None = None
     planner: _Nav | None = None
 
     def topics(self) -> list[str]:
         t = [lz.pub.entity.topic.rsplit("/", 1)[-1] for _, lz in sorted(self.lasers.items())]
+        t += [f"sonar{'' if i == 0 else i}_0..{len(s.pubs) - 1}" for i, s in sorted(self.sonars.items())]
         if self.base is not None:
             t += ["odom", "tf", "cmd_vel"]
         if self.localize is not None:
@@ -166,7 +141,9 @@ class _Robot:
         return t
 
     def empty(self) -> bool:
-        return self.base is None and not self.lasers and self.localize is None and self.planner is None
+        return (
+            self.base is None and not self.lasers and not self.sonars and self.localize is None and self.planner is None
+        )
 
 
 class Exporter:
@@ -177,12 +154,12 @@ class Exporter:
         self.fabric = fabric
         self.config = config
         self.part = Participant(fabric.session, config.domain)
-        self.outbox = _Outbox()
+        self.outbox = Outbox()
         self.on_change = on_change
         self._robots: dict[str, _Robot] = {}
         self._lock = threading.Lock()
         self._closed = False
-        ifaces = ("position2d", "laser", "localize", "planner")
+        ifaces = ("position2d", "laser", "sonar", "localize", "planner")
         templates = [f"rsal/{r}/{iface}/*" for r in config.robots for iface in ifaces]
         self._dnode = fabric.node(*templates)
         self._dnode.on_join(self._join)
@@ -234,6 +211,8 @@ class Exporter:
             self._join_base(addr)
         elif addr.interface == "laser":
             self._join_laser(addr)
+        elif addr.interface == "sonar":
+            self._join_sonar(addr)
         elif addr.interface == "localize" and addr.index == 0:
             self._join_localize(addr)
         elif addr.interface == "planner" and addr.index == 0:
@@ -259,6 +238,8 @@ class Exporter:
         def build_tf(data):
             tfs = [(f_odom, f_base, data.pose)]
             tfs += [(f_base, lz.frame, lz.mount) for lz in list(r.lasers.values())]
+            for so in list(r.sonars.values()):
+                tfs += [(f_base, f, m) for f, m in zip(so.frames, so.mounts, strict=True)]
             return types.tf_message(data.t, tfs)
 
         def on_odom(data) -> None:
@@ -334,6 +315,29 @@ class Exporter:
         r.lasers[addr.index] = _Laser(addr, proxy, pub, frame, mount, on_scan)
         proxy.add_listener(on_scan, inline=True)
 
+    def _join_sonar(self, addr: DeviceAddr) -> None:
+        r = self._robot(addr.node)
+        if addr.index in r.sonars:
+            return
+        proxy = self.fabric.device(addr)
+        geo = RangerGeometry.from_describe(self._describe(proxy))
+        if not geo.sensors:
+            log.warning("%s: describe lists no transducers; the sonar ring is not exported", addr)
+            return
+        poses = [tuple(float(v) for v in p) for p in geo.sensor_poses()]  # robot frame
+        fovs = [s.fov for s in geo.sensors]
+        ring = "sonar" if addr.index == 0 else f"sonar{addr.index}"
+        pubs = [r.node.publisher(f"{ring}_{k}", "sensor_msgs/msg/Range", SENSOR_QOS) for k in range(len(poses))]
+        frames = [self._frame(r.name, f"{ring}_{k}") for k in range(len(poses))]
+        post = self.outbox.post
+
+        def on_scan(scan) -> None:
+            for k, pub in enumerate(pubs[: len(scan.ranges)]):
+                post(pub, lambda d, k=k: types.sonar_range(d, k, frames[k], fovs[k]), scan)
+
+        r.sonars[addr.index] = _Sonar(addr, proxy, pubs, frames, poses, on_scan)
+        proxy.add_listener(on_scan, inline=True)
+
     def _leave(self, addr: DeviceAddr) -> None:
         r = self._robots.get(addr.node)
         if r is None or self._closed:
@@ -349,6 +353,12 @@ class Exporter:
             lz.proxy.remove_listener(lz.listener)
             lz.proxy.undeclare()
             lz.pub.close()
+        elif addr.interface == "sonar" and addr.index in r.sonars:
+            so = r.sonars.pop(addr.index)
+            so.proxy.remove_listener(so.listener)
+            so.proxy.undeclare()
+            for p in so.pubs:
+                p.close()
         elif addr.interface in ("localize", "planner") and addr.index == 0 and getattr(r, addr.interface):
             nav = getattr(r, addr.interface)
             setattr(r, addr.interface, None)

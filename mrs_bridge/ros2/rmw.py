@@ -11,6 +11,9 @@ callback on Zenoh's thread (the callback must not block).
 A transient-local publisher (``/map``) is Zenoh's advanced publisher with a cache of ``depth``
 samples and publisher detection, plus sample-miss heartbeats when reliable, as rmw_zenoh declares
 it: a late subscriber (rmw_zenoh's advanced subscriber with history) gets the cached messages.
+
+:class:`Outbox` is the hand-off from Zenoh's threads: the latest message per publisher (latest
+wins), built, encoded and put by one thread of its own.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import zenoh.ext as zext
 from . import types
 from .wire import DEFAULT_QOS, Attachment, Entity, Kind, QoS, WireError, topic_key, topic_keyexpr_any_hash
 
-__all__ = ["Participant", "Node", "Publisher", "Subscription"]
+__all__ = ["Participant", "Node", "Publisher", "Subscription", "Outbox"]
 
 log = logging.getLogger(__name__)
 
@@ -212,3 +215,44 @@ class Subscription:
         self.closed = True
         _undeclare(self._token)
         _undeclare(self._sub)
+
+
+class Outbox:
+    """The latest (build, data) per publisher and slot; one thread builds, encodes and puts them
+    (a build that returns None puts nothing)."""
+
+    def __init__(self):
+        self._pending: dict[tuple[Publisher, int], tuple[Callable[[Any], Any], Any]] = {}
+        self._cond = threading.Condition()
+        self._closed = False
+        self.sent = 0
+        self._thread = threading.Thread(target=self._run, name="ros2-export", daemon=True)
+        self._thread.start()
+
+    def post(self, pub: Publisher, build: Callable[[Any], Any], data: Any, slot: int = 0) -> None:
+        with self._cond:
+            self._pending[(pub, slot)] = (build, data)
+            self._cond.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._pending and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return
+                batch, self._pending = self._pending, {}
+            for (pub, _), (build, data) in batch.items():
+                try:
+                    msg = build(data)
+                    if msg is not None:
+                        pub.publish(msg)
+                        self.sent += 1
+                except Exception:
+                    log.exception("%s: could not publish", pub.entity.topic)
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+        self._thread.join(5.0)

@@ -44,6 +44,7 @@ __all__ = [
     "path",
     "pose_stamped_to_goal",
     "occupancy_grid",
+    "sonar_range",
 ]
 
 #: the ROS 2 distribution whose message definitions (and so hashes) the bridge speaks
@@ -226,3 +227,17 @@ def occupancy_grid(m, t: float, frame: str) -> Any:
         origin=_pose(float(m.origin[0]), float(m.origin[1]), 0.0),
     )
     return _T["nav_msgs/msg/OccupancyGrid"](header=_header(t, frame), info=info, data=data)
+
+
+def sonar_range(scan, k: int, frame: str, fov: float) -> Any:
+    """``sensor_msgs/msg/Range`` (ultrasound) of transducer ``k`` of a sonar ring's RangerData."""
+    R = _T["sensor_msgs/msg/Range"]
+    return R(
+        header=_header(scan.t, frame),
+        radiation_type=R.ULTRASOUND,
+        field_of_view=float(fov),
+        min_range=float(scan.range_min),
+        max_range=float(scan.range_max),
+        range=float(scan.ranges[k]),
+        variance=0.0,
+    )

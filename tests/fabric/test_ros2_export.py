@@ -91,7 +91,7 @@ def fleet():
         fab.node("sim:*:*").wait_for("sim:simulation:0", timeout=30)
         exp = started[1]
         wait_until(
-            lambda: "r0 (scan odom tf cmd_vel); fleet: /map /clock" in exp.output() or not exp.alive(),
+            lambda: "r0 (scan sonar_0..7 odom tf cmd_vel); fleet: /map /clock" in exp.output() or not exp.alive(),
             30,
             "rsal ros2 to export r0, the map and the clock",
         )
@@ -150,6 +150,7 @@ def test_graph_tokens_show_the_node_its_publishers_and_subscription(fleet):
         (Kind.PUBLISHER, "/r0/odom", "nav_msgs::msg::dds_::Odometry_"),
         (Kind.PUBLISHER, "/tf", "tf2_msgs::msg::dds_::TFMessage_"),
         (Kind.SUBSCRIPTION, "/r0/cmd_vel", TWIST_TYPE),
+        *((Kind.PUBLISHER, f"/r0/sonar_{k}", "sensor_msgs::msg::dds_::Range_") for k in range(8)),
     }
     seen: list = []
     with stock_session(port) as s:
@@ -262,7 +263,9 @@ def test_robots_that_join_are_exported_and_robots_that_leave_take_their_topics(p
     wait_until(lambda: "looking for robots matching r0" in exp.output(), 30, "rsal ros2 to start")
     assert r0_entities(exp_port) == set()
     sim = procs(rsal_cmd("sim", WORLD, "--listen", f"tcp/127.0.0.1:{sim_port}"))
-    wait_until(lambda: "r0 (scan odom tf cmd_vel)" in exp.output(), 60, "r0 exported once the simulator runs")
+    wait_until(
+        lambda: "r0 (scan sonar_0..7 odom tf cmd_vel)" in exp.output(), 60, "r0 exported once the simulator runs"
+    )
     wait_until(lambda: (Kind.SUBSCRIPTION, "/r0/cmd_vel") in r0_entities(exp_port), 10, "r0's graph tokens")
     sim.stop()
     wait_until(lambda: "0 robot(s) exported: none yet" in exp.output(), 30, "r0 withdrawn when its server stops")
@@ -303,7 +306,7 @@ def nav_fleet(procs):
     try:
         fab.node("sim:*:*").wait_for("sim:simulation:0", timeout=30)
         wait_until(
-            lambda: "r0 (scan odom tf cmd_vel amcl_pose goal_pose plan)" in exp.output(),
+            lambda: "r0 (scan sonar_0..7 odom tf cmd_vel amcl_pose goal_pose plan)" in exp.output(),
             60,
             "rsal ros2 to export r0 with its navigation stack",
         )
@@ -543,3 +546,29 @@ def test_the_exporter_as_a_driver_in_the_robots_own_server(procs, tmp_path):
             )
             time.sleep(0.1)
         assert abs(math.remainder(true_pose(fab)[2] - start[2], math.tau)) > 0.3, "r0 turned (ground truth)"
+
+
+def test_the_sonar_ring_is_one_range_topic_per_transducer(fleet):
+    from mrs_bridge.ros2 import types
+
+    port, fab, _ = fleet
+    sonar = fab.device("r0:sonar:0")
+    fov = sonar.describe().geometry["sensors"][3]["fov"]
+    rsal: dict[float, float] = {}
+    sonar.add_listener(lambda m: rsal.__setitem__(round(m.t, 6), float(m.ranges[3])), inline=True)
+    got: list[bytes] = []
+    key = "0/r0/sonar_3/sensor_msgs::msg::dds_::Range_/" + types.type_hash("sensor_msgs/msg/Range")
+    with stock_session(port) as s, s.declare_subscriber(key, lambda m: got.append(m.payload.to_bytes())):
+        wait_until(lambda: len(got) >= 3, 15, "Range messages of transducer 3")
+    body = got[-1][4:]
+    sec, nsec, n = struct.unpack_from("<iII", body, 0)
+    assert body[12 : 12 + n - 1] == b"r0/sonar_3"
+    o = 12 + n
+    kind = body[o]
+    o += 1
+    o += (-o) % 4
+    f, lo, hi, r, var = struct.unpack_from("<5f", body, o)
+    assert o + 20 == len(body)
+    assert kind == 0 and f == pytest.approx(fov, rel=1e-6) and lo <= r <= hi  # ULTRASOUND
+    wait_until(lambda: round(sec + nsec * 1e-9, 6) in rsal or len(rsal) > 50, 5, "the RSAL sonar reading")
+    assert r == pytest.approx(rsal[round(sec + nsec * 1e-9, 6)], rel=1e-6)
