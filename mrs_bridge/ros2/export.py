@@ -37,6 +37,7 @@ puts the ROS messages, so a slow encoder never holds a Zenoh thread (STYLE rule 
 from __future__ import annotations
 
 import logging
+import re
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -54,7 +55,7 @@ from .fleet import FleetTopics
 from .rmw import Node, Outbox, Participant, Publisher, Subscription
 from .wire import DEFAULT_QOS, SENSOR_QOS, QoS
 
-__all__ = ["Exporter", "ExportConfig"]
+__all__ = ["Exporter", "ExportConfig", "ros_namespace"]
 
 log = logging.getLogger(__name__)
 
@@ -146,6 +147,13 @@ class _Robot:
         )
 
 
+def ros_namespace(robot: str) -> str:
+    """The ROS namespace of a robot: ``/<robot>``, with every character ROS names do not allow
+    (RSAL node names may hold ``-`` and ``.``) as ``_``, and ``_`` before a leading digit."""
+    ns = re.sub(r"[^A-Za-z0-9_]", "_", robot)
+    return "/" + ("_" + ns if ns[:1].isdigit() else ns)
+
+
 class Exporter:
     """Export the robots of a fabric to a ROS 2 domain. Use as a context manager."""
 
@@ -192,7 +200,10 @@ class Exporter:
     def _robot(self, name: str) -> _Robot:
         r = self._robots.get(name)
         if r is None:
-            r = _Robot(name, self.part.node(f"/{name}", self.config.node_name))
+            ns = ros_namespace(name)
+            if ns != f"/{name}":
+                log.warning("robot %r: not a ROS name; exported in the namespace %s", name, ns)
+            r = _Robot(name, self.part.node(ns, self.config.node_name))
             with self._lock:
                 self._robots[name] = r
         return r

@@ -217,3 +217,11 @@ def test_the_documented_wire_examples_are_what_the_code_writes():
     )
     head, tail = sub.token.split("RIHS01_9c45")
     assert f"`{head}RIHS01_9c45...{tail[-len('/::,10:,:,:,,') :]}`" in doc
+
+
+def test_robot_names_become_ros_namespaces():
+    from mrs_bridge.ros2.export import ros_namespace
+
+    assert ros_namespace("r0") == "/r0"
+    assert ros_namespace("pioneer-2.a") == "/pioneer_2_a"
+    assert ros_namespace("7up") == "/_7up"
