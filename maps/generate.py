@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Draw the project's floorplan bitmaps: ``python maps/generate.py`` rewrites every PNG in place.
+"""Draw the project's floorplan bitmaps: ``python maps/generate.py`` rewrites every PNG in place,
+with ``maps.yaml`` and, per map, ``NAME.yaml`` in the ROS map_server format (docs/mapping.md).
 
 All three maps are original drawings of this project (nothing is taken from Stage or Player).
 Each layout is plain data below: rectangles ``(x0, y0, x1, y1)`` and polygons ``[(x, y), ...]``
@@ -300,6 +301,21 @@ def _yaml(maps: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _map_server_yaml(m: dict) -> str:
+    """``NAME.yaml``: the bitmap as a ROS map_server map, loadable wherever a built map is."""
+    ox, oy = m["origin"]
+    return (
+        "# Written by maps/generate.py (do not edit by hand). ROS map_server format: docs/mapping.md.\n"
+        f"image: {m['file']}\n"
+        f"resolution: {m['resolution']}\n"
+        f"origin: [{ox}, {oy}, 0.0]\n"
+        "occupied_thresh: 0.65\n"
+        "free_thresh: 0.196\n"
+        "negate: 0\n"
+        "mode: trinary\n"
+    )
+
+
 def main() -> None:
     for m in MAPS.values():
         img = render(m)
@@ -307,6 +323,7 @@ def main() -> None:
         Image.fromarray(img).save(out, format="PNG", optimize=True)
         occ = float((img == OCCUPIED).mean())
         print(f"{out.relative_to(HERE.parent)}: {img.shape[1]} x {img.shape[0]} px, {occ:.1%} occupied")
+        (HERE / m["file"]).with_suffix(".yaml").write_text(_map_server_yaml(m))
     (HERE / "maps.yaml").write_text(_yaml(MAPS))
     print("maps/maps.yaml")
 

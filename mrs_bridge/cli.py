@@ -89,6 +89,9 @@ def _serve(args: argparse.Namespace) -> int:
     return run_server(cfg, args)
 
 
+TRUTH_INDEX = 3  # rsal sim --truth: <robot>:position2d:3, the ground-truth pose
+
+
 def sim_config(
     world,
     *,
@@ -97,6 +100,7 @@ def sim_config(
     nav: str | None = None,
     nav_robots: list[str] | None = None,
     node: str = "sim",
+    truth: bool = False,
 ) -> ServerConfig:
     """The server configuration of ``rsal sim`` for a loaded :class:`simulator.world.World`.
 
@@ -104,7 +108,9 @@ def sim_config(
     ``nav_robots``) also gets the navigation stack of thesis appendix A.3: ``amcl`` (localize:0,
     position2d:2, started at the robot's true pose), the local planner (position2d:1) and
     ``wavefront`` (planner:0), all on the simulated floorplan ``sim:map:0``. ``node`` names the node
-    of the simulation and map devices (default ``sim``).
+    of the simulation and map devices (default ``sim``). With ``truth`` every robot also gets
+    ``position2d:3``, its ground-truth pose in the world frame (a ``sim`` driver with ``localization =
+    "gps"``, describe frame ``gps``): what ``rsal record`` records as the reference of a run.
     """
     from rsal.keys import DeviceAddr, parse_device
 
@@ -127,6 +133,8 @@ def sim_config(
         drivers.append(block("simmap", node, [("map", 0)]))
     for name in world.robot_names:
         drivers.append(block("sim", name, robot_devices(world.model_spec(name)), model=name))
+        if truth:
+            drivers.append(block("sim", name, [("position2d", TRUTH_INDEX)], model=name, localization="gps"))
     if nav:
         if world.grid is None or not map_device:
             raise ConfigError(f"{source}: --nav needs the world's floorplan served as {map_addr}")
@@ -197,6 +205,7 @@ def _sim(args: argparse.Namespace) -> int:
             nav=args.nav,
             nav_robots=args.nav_robots,
             node=args.node,
+            truth=args.truth,
         )
     except ConfigError as e:
         print(f"rsal sim: {e}", file=sys.stderr)
@@ -264,6 +273,11 @@ def register_sim(sub) -> None:
         type=lambda t: [x for x in t.split(",") if x],
         metavar="R0,R1",
         help="robots that get the navigation stack (default: every robot with a laser)",
+    )
+    p.add_argument(
+        "--truth",
+        action="store_true",
+        help="also serve each robot's ground-truth pose as ROBOT:position2d:3 (frame gps), e.g. to record it",
     )
     p.add_argument("--require-timeout", type=positive, default=30.0, help=argparse.SUPPRESS)
     add_transport_args(p)

@@ -22,7 +22,7 @@ from typing import Any
 
 import zenoh
 
-from . import keys
+from . import keys, ownership
 from .clock import clock
 from .keys import DeviceAddr
 from .msgs import ErrorCode, RpcError, encode, parse_reply
@@ -46,33 +46,57 @@ def query_rpc(
     """Query ``rsal/<addr>/rpc/<op>`` without blocking; ``done`` gets the reply map or an
     :class:`RpcError` (the device's typed error, a transport error, or a timeout), exactly once, on
     a Zenoh thread. The one implementation behind :meth:`Fabric.rpc_async` and the device server's
-    driver requests."""
+    driver requests. Only the reply of the session that owns the device counts
+    (:mod:`rsal.ownership`)."""
     key = keys.rpc_key(addr, op)
-    got: list = []
+    replies: list = []  # (replier zid, reply map or RpcError)
+    owners: set[str] = set()
+    lock = threading.Lock()
+    pending = [2]  # the query and the owner look-up
 
     def on_reply(reply) -> None:
-        if got:
-            return
         try:
             if reply.ok is not None:
-                got.append(parse_reply(reply.ok.payload.to_bytes(), key=key))
+                result = parse_reply(reply.ok.payload.to_bytes(), key=key)
             else:
                 parse_reply(reply.err.payload.to_bytes(), is_error=True, key=key, timeout=timeout)  # raises
         except RpcError as e:
-            got.append(e)
+            result = e
+        with lock:
+            replies.append((ownership.replier_zid(reply), result))
 
-    def on_done() -> None:
-        done(got[0] if got else RpcError(ErrorCode.TIMEOUT, f"no reply within {timeout:g} s (is {addr} alive?)", key))
+    def on_owner(reply) -> None:
+        if reply.ok is not None:
+            with lock:
+                owners.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
 
+    def finish() -> None:
+        with lock:
+            pending[0] -= 1
+            if pending[0]:
+                return
+        done(ownership.choose(key, str(addr), replies, owners, timeout))
+
+    # Every queryable on the key answers (a rogue one included) and the owner's reply is chosen:
+    # with consolidation, Zenoh would keep one reply, which need not be the owner's.
+    try:
+        session.liveliness().get(
+            ownership.owners_query(keys.device_key(addr)), zenoh.handlers.Callback(on_owner, finish), timeout=timeout
+        )
+    except Exception as e:
+        done(RpcError(ErrorCode.UNAVAILABLE, f"cannot look the device's owner up: {e}", key))
+        return
     try:
         session.get(
             key,
-            zenoh.handlers.Callback(on_reply, on_done),
+            zenoh.handlers.Callback(on_reply, finish),
             payload=encode(args or {}),
             timeout=timeout,
-            target=zenoh.QueryTarget.BEST_MATCHING,
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,
         )
     except Exception as e:
+        pending[0] = 99  # the look-up's end must not answer too
         done(RpcError(ErrorCode.UNAVAILABLE, f"cannot send the query: {e}", key))
 
 

@@ -21,6 +21,7 @@ category, the class also derives from it, so ``except ValueError`` still works::
     ├── ApiError (ValueError)                   agents.control.api: a bad request to the control center
     ├── SecureError (ValueError)                rsal.secure: a fleet folder or identity that cannot be made
     ├── RecordingError (ValueError)             rsal.record: a recording that cannot be written or read
+    ├── MapFileError (ValueError)               rsal.mapping.mapyaml: a map file that cannot be read or written
     └── _Failure                                agents.demo: the demo cannot go on (private)
 
     SimulatorError                              simulator.errors: a root of its own, see below

@@ -49,6 +49,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from .errors import RsalError
+from .ownership import owners_query
 
 __all__ = ["SecureError", "Identity", "Fleet", "acl", "register"]
 
@@ -117,6 +118,12 @@ def _call(rid: str, kes: list[str]) -> list[dict]:
     return [_rule(f"{rid}-ask", "ingress", ["query"], kes), _rule(f"{rid}-answer", "egress", ["reply"], kes)]
 
 
+def _owners(devices: str) -> str:
+    """The owner tokens of ``devices`` (rsal.ownership): ``@owner`` is a verbatim chunk, which no
+    ``**`` covers, so each rule that grants a device's token names its owner token too."""
+    return owners_query(devices)
+
+
 def _rules_of(ident: Identity) -> list[dict]:
     n = ident.name
     rules = _read(f"{n}-clock", [CLOCK])
@@ -124,7 +131,7 @@ def _rules_of(ident: Identity) -> list[dict]:
     # publishers and queriers where to send; they carry no data, so everyone may receive them.
     rules.append(_rule(f"{n}-decl", "egress", ["declare_subscriber", "declare_queryable"], ["**"]))
     if ident.kind == "robot":
-        own = [f"rsal/{node}/**" for node in ident.nodes]
+        own = [k for node in ident.nodes for k in (f"rsal/{node}/**", _owners(f"rsal/{node}/*/*"))]
         rules.append(_rule(f"{n}-own-in", "ingress", list(ALL_MESSAGES), own))
         rules.append(_rule(f"{n}-own-out", "egress", list(ALL_MESSAGES), own))
         # ``rsal estop --all`` asks every base at once: the query's key names no robot
@@ -144,21 +151,21 @@ def _rules_of(ident: Identity) -> list[dict]:
         rules.append(_rule(f"{n}-hello-asked", "egress", ["query"], [f"svc/{HELLO}/*"]))
         rules += _call(f"{n}-hello", [f"svc/{HELLO}/*"])
         if ident.robots:
-            mine = [f"rsal/{r}/**" for r in ident.robots]
+            mine = [k for r in ident.robots for k in (f"rsal/{r}/**", _owners(f"rsal/{r}/*/*"))]
             rules += _read(f"{n}-robots", mine) + _tokens(f"{n}-robots", mine)
             rules.append(_rule(f"{n}-drive", "ingress", ["put"], [f"rsal/{r}/*/*/cmd" for r in ident.robots]))
             rules += _call(f"{n}-rpc", [f"rsal/{r}/*/*/rpc/*" for r in ident.robots])
             # a simulated robot's agent anchors its odometry at the robot's true start pose
-            rules += _tokens(f"{n}-sim", [SIMULATION])
+            rules += _tokens(f"{n}-sim", [SIMULATION, _owners(SIMULATION)])
             rules += _call(f"{n}-sim", [f"{SIMULATION}/rpc/{op}" for op in SIM_READS])
     elif ident.kind == "operator":
-        everything = ["rsal/**", "svc/**", "agents/**"]
+        everything = ["rsal/**", _owners("rsal/*/*/*"), "svc/**", "agents/**"]
         rules += _read(f"{n}-all", everything) + _tokens(f"{n}-all", everything)
         rules.append(_rule(f"{n}-drive", "ingress", ["put"], ["rsal/*/*/*/cmd"]))
         rules += _call(f"{n}-rpc", ["rsal/*/*/*/rpc/*"])
     elif ident.kind == "viewer":
         rules += _read(f"{n}-data", ["rsal/*/*/*/data", "rsal/*/*/*/event"])
-        rules += _tokens(f"{n}-tokens", ["rsal/**", "agents/**"])
+        rules += _tokens(f"{n}-tokens", ["rsal/**", _owners("rsal/*/*/*"), "agents/**"])
         rules += _call(f"{n}-look", ["rsal/*/*/*/rpc/describe", "rsal/*/position2d/*/rpc/estop"])
     return rules
 

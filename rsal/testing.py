@@ -32,9 +32,20 @@ from . import keys, msgs
 from .keys import DeviceAddr, parse_device
 from .msgs import ErrorCode, RpcError, VelocityCmd
 
-__all__ = ["FakeFabric", "FakeQuery", "FakeReply", "FakeSample", "FakeServer", "FakeSession", "InlineDispatcher"]
+__all__ = [
+    "FakeFabric",
+    "FakeId",
+    "FakeQuery",
+    "FakeReply",
+    "FakeSample",
+    "FakeServer",
+    "FakeSession",
+    "InlineDispatcher",
+]
 
 _PUT, _DELETE = zenoh.SampleKind.PUT, zenoh.SampleKind.DELETE
+
+FAKE_ZID = "fa4e"  # every FakeSession's Zenoh id: all its entities are one session
 
 
 def _intersects(a: str, b: str) -> bool:
@@ -49,18 +60,27 @@ class FakeSample(NamedTuple):
     kind: Any = _PUT  # zenoh.SampleKind
 
 
+class FakeId(NamedTuple):
+    """A replier's id, as ``Reply.replier_id`` gives it: the session's ``zid``."""
+
+    zid: str
+
+
 class FakeReply(NamedTuple):
-    """A reply to :meth:`FakeSession.get`: ``ok`` (a sample) or ``err`` (an object with ``payload``)."""
+    """A reply to :meth:`FakeSession.get`: ``ok`` (a sample) or ``err`` (an object with ``payload``),
+    and ``replier_id`` (the answering session's id)."""
 
     ok: FakeSample | None = None
     err: FakeSample | None = None
+    replier_id: FakeId | None = None
 
 
 class FakeQuery:
     """A query as a queryable's handler sees it; its replies go straight back to the caller."""
 
-    def __init__(self, key: str, payload: bytes | None, replies: list[FakeReply]) -> None:
+    def __init__(self, key: str, payload: bytes | None, replies: list[FakeReply], zid: str = FAKE_ZID) -> None:
         self.key_expr = key
+        self._id = FakeId(zid)
         self.selector = key
         self.parameters = ""
         self.payload = None if payload is None else zenoh.ZBytes(payload)
@@ -68,10 +88,12 @@ class FakeQuery:
         self.dropped = False
 
     def reply(self, key, payload, **kw) -> None:
-        self._replies.append(FakeReply(ok=FakeSample(str(key), zenoh.ZBytes(bytes(payload)))))
+        self._replies.append(FakeReply(ok=FakeSample(str(key), zenoh.ZBytes(bytes(payload))), replier_id=self._id))
 
     def reply_err(self, payload, **kw) -> None:
-        self._replies.append(FakeReply(err=FakeSample(self.key_expr, zenoh.ZBytes(bytes(payload)))))
+        self._replies.append(
+            FakeReply(err=FakeSample(self.key_expr, zenoh.ZBytes(bytes(payload))), replier_id=self._id)
+        )
 
     def drop(self) -> None:
         self.dropped = True
@@ -137,6 +159,11 @@ class _Liveliness:
         alive = [t.key for t in self.s._tokens if _intersects(str(key), t.key)]
         replies = [FakeReply(ok=FakeSample(k, zenoh.ZBytes(b""))) for k in alive]
         return self.s._answer(replies, handler)
+
+
+class _Info:
+    def zid(self) -> str:
+        return FAKE_ZID
 
 
 class FakeSession:
@@ -207,6 +234,10 @@ class FakeSession:
 
     def liveliness(self) -> _Liveliness:
         return _Liveliness(self)
+
+    @property
+    def info(self) -> _Info:
+        return _Info()
 
     # ------------------------------------------------------------------ lifecycle
     def close(self) -> None:

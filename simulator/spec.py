@@ -175,7 +175,8 @@ class FloorplanSpec:
 
     Placement is either Stage's (``size`` in metres and the centre ``pose``) or the mapfile
     driver's (``resolution`` in m/pixel and ``origin`` = world position of the bottom-left
-    corner, thesis appendix A.2). The parsers fill both ``resolution`` and ``origin``.
+    corner, thesis appendix A.2), or a ROS map_server YAML's. The parsers fill both ``resolution``
+    and ``origin``.
     """
 
     bitmap: Path
@@ -185,6 +186,10 @@ class FloorplanSpec:
     name: str = "floorplan"
     threshold: float = 0.5  # a pixel darker than this fraction of full brightness is occupied
     boundary: bool = False  # Stage ``boundary 1``: walls along the map's outer edge
+    # From a ROS map_server YAML (``bitmap`` is then the image it names; gridmap.read_map_yaml):
+    negate: bool = False  # bright pixels are occupied (``threshold`` then counts from black)
+    mode: str = "trinary"  # map_server's trinary/scale (grey levels) or raw (percent values)
+    mapfile: Path | None = None  # the YAML the floorplan came from
 
 
 @dataclass

@@ -64,6 +64,7 @@ from ..hw.scip import (
     params_from_pp,
     parse_fields,
     parse_frame,
+    status_text,
 )
 from ..hw.serial_link import SerialLink
 from ..params import param, parse_params
@@ -137,7 +138,7 @@ class _ScipSession:
             fr = self._next(max(0.01, deadline - time.monotonic()))
             if fr.echo.startswith(cmd[:2]) and not (cmd[:2] == b"MD" and fr.status == b"99"):
                 if fr.status not in ok:
-                    what = STATUS.get(fr.status, "error")
+                    what = status_text(cmd, fr.status)
                     raise ScipError(f"{cmd.decode()}: status {fr.status.decode()} ({what})")
                 return fr
             # an answer to an earlier command, or a scan of an MD still running: skip it
@@ -150,7 +151,7 @@ class _ScipSession:
         link.reset_input()
         link.write(b"QT\n")  # stop a scan left running by an earlier client
         try:
-            self.command(b"SCIP2.0", ok=(b"00", b"0E", b"0L"), timeout=d.timeout)
+            self.command(b"SCIP2.0", ok=(b"00", b"0D", b"0E", b"0L"), timeout=d.timeout)
         except TimeoutError:
             raise TimeoutError(f"{d.port}: the sensor does not answer SCIP2.0") from None
         vv = parse_fields(self.command(b"VV", timeout=d.timeout))
@@ -170,7 +171,7 @@ class _ScipSession:
             if not fr.echo.startswith(b"MD"):
                 continue
             if fr.status != b"99":
-                raise ScipError(f"MD: status {fr.status.decode()} ({STATUS.get(fr.status, 'error')})")
+                raise ScipError(f"MD: status {fr.status.decode()} ({status_text(b'MD', fr.status)})")
             try:
                 ts, mm = decode_scan(fr)
             except ScipError as e:

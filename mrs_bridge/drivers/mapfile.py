@@ -3,7 +3,10 @@
 Parameters (Player's names): ``filename`` (relative to the config file), ``resolution`` (m/pixel),
 ``origin`` ``[x, y]`` (world position of the bitmap's bottom-left corner; default: centred on 0,0),
 ``negate`` (dark = free), ``occupied_thresh`` (fraction of full brightness below which a pixel is
-occupied, default 0.5). Provides ``map:N``: ``rpc/get`` returns the whole grid (int8, Player's
+occupied, default 0.5). A ``filename`` ending in ``.yaml``/``.yml`` is a ROS map_server map
+(:mod:`rsal.mapping.mapyaml`, what ``rsal map`` writes): the YAML sets resolution, origin,
+thresholds and negate, so those parameters must not be given, and its unknown cells are served as
+unknown (0). Provides ``map:N``: ``rpc/get`` returns the whole grid (int8, Player's
 -1 free / 0 unknown / +1 occupied, rows from the bottom); ``data`` carries the map's metadata
 every few seconds so late subscribers learn of it.
 """
@@ -15,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rsal.mapping.mapyaml import MapFileError, is_map_yaml, read_map
 from rsal.msgs import MapData
 
 from ..config import ConfigError
@@ -28,7 +32,7 @@ __all__ = ["MapfileDriver"]
 class MapfileParams:
     """The ``mapfile`` driver's parameters (module docstring)."""
 
-    filename: Path = param(doc="the map bitmap", example="../maps/floor.png")
+    filename: Path = param(doc="the map bitmap or map_server YAML", example="../maps/floor.png")
     resolution: float = param(0.05, gt=0.0, expect="positive metres per pixel")
     origin: tuple[float, ...] | None = param(None, expect="[x, y] in metres")
     negate: bool = param(False)
@@ -37,6 +41,29 @@ class MapfileParams:
     def __post_init__(self) -> None:
         if self.origin is not None and len(self.origin) < 2:
             raise ValueError(f"origin = {list(self.origin)!r} must be [x, y] in metres")
+
+
+YAML_SETS = ("resolution", "origin", "negate", "occupied_thresh")
+"""Parameters a map_server YAML sets itself."""
+
+
+def _map_from_yaml(path: Path, cfg) -> MapData:
+    """The map of a map_server YAML, in Player's convention; ConfigError (one line) if it is wrong."""
+    if given := [k for k in YAML_SETS if k in cfg.params]:
+        raise ConfigError(
+            f"{cfg.where}: {', '.join(given)}: the map_server YAML {path.name!r} sets "
+            f"{'this' if len(given) == 1 else 'these'} itself; remove {' and '.join(given)} from the block"
+        )
+    try:
+        m = read_map(path)
+    except MapFileError as e:
+        raise ConfigError(f"{cfg.where}: {e}") from None
+    if abs(m.origin[2]) > 1e-9:
+        raise ConfigError(
+            f"{cfg.where}: {path.name}: origin yaw {m.origin[2]!r} rad is not supported (maps are "
+            "axis-aligned); re-sample the map, e.g. with 'rsal map align ... -o'"
+        )
+    return MapData(m.width, m.height, m.resolution, (m.origin[0], m.origin[1]), m.cells())
 
 
 @register("mapfile")
@@ -51,6 +78,9 @@ class MapfileDriver(Driver):
         from simulator.gridmap import GridMap
 
         p = self.settings = parse_params(MapfileParams, cfg)
+        if is_map_yaml(p.filename):
+            self.map = _map_from_yaml(p.filename, cfg)
+            return
         res = p.resolution
         try:
             grid = GridMap.from_image(p.filename, res, (0.0, 0.0), threshold=p.occupied_thresh)

@@ -85,6 +85,7 @@ from ..hw.p2os import (
     checksum,
     command,
     decode_sip,
+    gripper_state,
     is_sip,
     model_for,
     packet,
@@ -181,6 +182,7 @@ class P2osDriver(Driver):
         self._last_warn = -math.inf
         self._motors = True
         self._last_grip_cmd = ""
+        self._last_lift = 0.0  # the lift's last known or commanded position (0 down, 1 up)
         self._lost_reason = ""
         self._t0 = time.monotonic()
         self.guard = BaseGuard.for_driver(self, cfg.provides[0].node)
@@ -386,38 +388,44 @@ class P2osDriver(Driver):
                 pct = min(100.0, max(0.0, 100.0 * (volts - POWER_EMPTY) / (POWER_FULL - POWER_EMPTY)))
                 self.publish(a, PowerData(t, volts, pct, bool(sip.charge_state)))
             elif iface == "gripper" and sip.gripper is not None:
-                self.publish(a, self._gripper_msg(t, sip.gripper))
+                self.publish(a, self._gripper_msg(t, sip))
             elif iface == "dio" and sip.digin is not None:
                 self.publish(a, DioData(t, 8, sip.digin, sip.digout or 0))
             elif iface == "actarray" and sip.gripper is not None:
-                self.publish(a, self._lift_msg(t, sip.gripper))
+                self.publish(a, self._lift_msg(t, sip))
         self._sonar_fresh = False
 
-    def _gripper_msg(self, t: float, g: int) -> GripperData:
-        if g & 1:
-            paddles = "open"
-        elif g & 2:
-            paddles = "closed"
-        else:
+    def _gripper_msg(self, t: float, sip: Sip) -> GripperData:
+        """GripperData from the gripper state byte and DIGIN (tables in :mod:`mrs_bridge.hw.p2os`)."""
+        st = gripper_state(sip.gripper or 0, sip.digin or 0)
+        paddles = st.paddles
+        if paddles in ("moving", "between"):  # no direction reported: the last command's
             paddles = "closing" if self._last_grip_cmd == "close" else "opening"
-        if g & 4:
-            lift = "up"
-        elif g & 8:
-            lift = "down"
-        else:
+        lift = st.lift
+        if lift == "moving":  # no direction reported: the last command's
             lift = "lowering" if self._last_grip_cmd == "down" else "raising"
-        beams = (g >> 4) & 3
-        stored = 1 if (g & 2 and beams) else 0
-        return GripperData(t, paddles, lift, beams, stored, None)
+        elif lift == "between":  # stopped at a carry position: the nearer end
+            lift = "up" if self._last_lift >= 0.5 else "down"
+        elif lift == "stalled":  # neither at an end nor moving
+            lift = "error"
+        stored = 1 if (paddles == "closed" and st.beams) else 0
+        return GripperData(t, paddles, lift, st.beams, stored, None)
 
-    @staticmethod
-    def _lift_msg(t: float, g: int) -> ActArrayData:
-        if g & 4:
+    def _lift_msg(self, t: float, sip: Sip) -> ActArrayData:
+        """The lift as a one-joint actuator array (Player's ``lift::actarray``): 1 up, 0 down;
+        between its ends the last commanded position."""
+        st = gripper_state(sip.gripper or 0, 0)
+        if st.lift == "up":
             pos, state = 1.0, "idle"
-        elif g & 8:
+        elif st.lift == "down":
             pos, state = 0.0, "idle"
+        elif st.lift in ("raising", "lowering", "moving"):
+            pos, state = self._last_lift, "moving"
+        elif st.lift == "between":
+            pos, state = self._last_lift, "idle"
         else:
-            pos, state = 0.5, "moving" if g & 0x80 else "stalled"
+            pos, state = self._last_lift, "stalled"
+        self._last_lift = pos
         return ActArrayData(t, (pos,), (0.0,), (state,))
 
     def publish_rate(self, addr) -> float:
@@ -472,6 +480,8 @@ class P2osDriver(Driver):
             raise MessageError(e.message) from None
         link.send(command(GRIPPER, GRIPPER_ARGS[action]))
         self._last_grip_cmd = action
+        if action in ("up", "down"):
+            self._last_lift = 1.0 if action == "up" else 0.0
 
     def _digout(self, bits: int, mask: int) -> None:
         self._need_robot().send(command(DIGOUT, (mask << 8) | bits))

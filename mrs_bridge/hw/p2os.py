@@ -2,7 +2,7 @@
 
 Spec: ActivMedia/MobileRobots "Pioneer 2 / PeopleBot Operations Manual" (P2OS client-server
 protocol) and the ARCOS manual; the same protocol Player's ``p2os`` driver speaks (thesis 3.3.2,
-A.2). Moved here from the driver unchanged: the bit meanings are the driver's as they were.
+A.2). The tables below are taken from the manuals named with them.
 
 The robot's microcontroller (P2OS, later ARCOS) speaks a packet protocol on its serial port:
 
@@ -22,39 +22,63 @@ Connecting: SYNC0, SYNC1, SYNC2 are each echoed by the robot; the SYNC2 echo car
 name, class and subclass as NUL-terminated strings. Then OPEN, SONAR 1, ENABLE 1, and PULSE at
 least every ``pulse`` seconds (the robot stops its motors when it hears nothing for about 2 s).
 
-Standard server information packet (SIP), decoded by :func:`decode_sip`; offsets into the payload,
-multi-byte values little-endian:
+Standard server information packet (SIP), decoded by :func:`decode_sip`. Sources: the
+"Pioneer 2 / PeopleBot Operations Manual" (ActivMedia Robotics), chapter "P2OS", section "Server
+Information Packets" (the standard SIP table), and the "Pioneer 3 Operations Manual" chapter
+"ARCOS", section "Standard SIP" (which adds the fields after DIGOUT). Offsets into the payload
+(after the byte count), multi-byte values little-endian ("integer" = 2 bytes):
 
-====== ===== =====================================================================================
-offset bytes field
-====== ===== =====================================================================================
-0      1     type: 0x32 stopped, 0x33 moving
-1      2     xpos: 15-bit counter of DistConv mm units, wraps around
-3      2     ypos: likewise
-5      2     thpos: heading, 4096 units per revolution (12 bits used, wraps around)
-7      2     l_vel: left wheel, signed, VelConv mm/s
-9      2     r_vel: right wheel, likewise
-11     1     battery: 0.1 V
-12     2     stall and bumpers: bit 0 left wheel stalled, bits 1-7 rear bumpers; bit 8 right wheel
-             stalled, bits 9-15 front bumpers
-14     2     control: servo heading set-point (not used)
-16     2     flags: bit 0 motors enabled, bits 1-4 sonar arrays on
-18     1     compass: 2 degree units (not used)
-19     1     sonar readings n, followed by n times: sonar number (1 byte), range (2 bytes, RangeConv mm)
-20+3n  1     gripper state: bit 0 paddles open, 1 paddles closed, 2 lift up, 3 lift down, 4 inner
-             break beam, 5 outer break beam, 6 paddles moving, 7 lift moving
-+1     1     analog port selected
-+2     1     analog value (0..255 = 0..5 V)
-+3     1     digital inputs
-+4     1     digital outputs
-+5     2     battery x10: 0.1 V (more precise firmwares; 0 = use the 1-byte value)
-+7     1     charge state: 0 not charging, 1 bulk, 2 overcharge, 3 float
-====== ===== =====================================================================================
+====== ===== ============= ==========================================================================
+offset bytes name          meaning
+====== ===== ============= ==========================================================================
+0      1     TYPE          0x32 stopped, 0x33 moving (0x3S: S = 2 or 3)
+1      2     XPOS          15-bit wrapping counter of DistConv mm units
+3      2     YPOS          likewise
+5      2     THPOS         heading, 4096 units per revolution (12 bits used, wraps around)
+7      2     L VEL         left wheel, signed, VelConv mm/s
+9      2     R VEL         right wheel, likewise
+11     1     BATTERY       0.1 V
+12     2     STALL AND     bit 0 left wheel stalled, bits 1-7 rear bumper segments 1-7; bit 8 right
+             BUMPERS       wheel stalled, bits 9-15 front bumper segments 1-7 (a P2DX has 5 each)
+14     2     CONTROL       the heading servo's set-point, signed angle units (not used)
+16     2     FLAGS         bit 0 motors enabled, bits 1-4 sonar arrays 0-3 on (more bits on ARCOS)
+18     1     COMPASS       2-degree units (not used)
+19     1     SONAR COUNT   n readings follow, each NUMBER (1 byte) and RANGE (2 bytes, RangeConv mm)
+20+3n  2     TIMER         P2OS: the user timer; its high byte (offset 21+3n) is the gripper state
+                           byte (table below); ARCOS names these two bytes GRIP_STATE and ANPORT
+22+3n  1     ANALOG        user analog input, 0..255 = 0..5 V
+23+3n  1     DIGIN         user digital inputs (the gripper's break beams and paddle contacts, below)
+24+3n  1     DIGOUT        user digital outputs
+25+3n  2     BATTERYX10    ARCOS: battery, 0.1 V (0 or absent: use BATTERY)
+27+3n  1     CHARGESTATE   ARCOS: 0 not charging, 1 bulk, 2 overcharge, 3 float
+====== ===== ============= ==========================================================================
 
-Everything after the sonar readings is optional (older firmwares end there). Odometry integrates
-the differences of the wrapping counters, so the pose is continuous across wrap-arounds and
-reconnections; the conversion factors come from a per-model table (:data:`MODELS`) chosen by the
-subclass the robot announces (or the ``model`` parameter).
+Everything from TIMER on is optional (older firmwares end after the sonars).
+
+The Pioneer gripper. The operations manuals name the bytes but not their gripper bits; the bit
+table is the one Player's ``p2os`` driver decodes (``sip.cc``, the standard SIP's gripper and lift
+state; Player was the thesis's driver), read for its meaning, and the break-beam bits are those
+ARIA's ``ArGripper`` reads from DIGIN for a gripper on the user I/O port. The **gripper state
+byte** (TIMER high byte, :data:`GRIP_BITS`):
+
+==== ===== ============================================================================
+bit  mask  meaning
+==== ===== ============================================================================
+0    0x01  paddles open (while 0x04: they are opening)
+1    0x02  paddles closed (while 0x04: they are closing); 0x01 and 0x02 without 0x04: error
+2    0x04  paddles moving
+4    0x10  lift up (while 0x40: raising)
+5    0x20  lift down (while 0x40: lowering); 0x10 and 0x20 without 0x40: stopped between
+6    0x40  lift moving
+==== ===== ============================================================================
+
+and the **break beams and paddle contacts in DIGIN** (:data:`DIGIN_BITS`): bit 2 (0x04) outer
+break beam broken, bit 3 (0x08) inner break beam broken, bit 4 (0x10) left and bit 5 (0x20) right
+paddle contact, active low (0 = touching). ARIA's ``ArGripper`` reads a different bit table from
+the same byte for the older "general I/O" gripper wiring (switch levels, active low); this codec
+follows the table above; ARCOS names the TIMER's first byte GRIP_STATE, which no client reads
+here. Gripper commands (GRIPPER, 33; the same numbers in ARIA's ``ArGripperCommands``): 1 open,
+2 close, 3 stop paddles, 4 lift up, 5 lift down, 6 stop lift.
 
 The robot model table (:data:`MODELS`: conversion factors, sonar poses, limits) and the odometry
 that integrates the wrapping counters (:class:`Odometry`) are pure computations on SIPs and live
@@ -72,6 +96,9 @@ import numpy as np
 from rsal.geometry import wrap
 
 __all__ = [
+    "DIGIN_BITS",
+    "GRIP_BITS",
+    "GripperState",
     "HEADER",
     "MAX_COUNT",
     "MODELS",
@@ -82,6 +109,7 @@ __all__ = [
     "checksum",
     "command",
     "decode_sip",
+    "gripper_state",
     "is_sip",
     "model_for",
     "packet",
@@ -96,7 +124,7 @@ PULSE, OPEN, CLOSE = 0, 1, 2
 ENABLE, VEL, RVEL, SONAR, DIGOUT, GRIPPER = 4, 11, 21, 28, 30, 33
 ARG_INT, ARG_NINT, ARG_STR = 0x3B, 0x1B, 0x2B
 
-# GRIPPER command arguments (Pioneer gripper manual)
+# GRIPPER command arguments (module docstring)
 GRIP_OPEN, GRIP_CLOSE, GRIP_STOP, LIFT_UP, LIFT_DOWN, LIFT_STOP = 1, 2, 3, 4, 5, 6
 GRIPPER_ARGS = {"open": GRIP_OPEN, "close": GRIP_CLOSE, "stop": GRIP_STOP, "up": LIFT_UP, "down": LIFT_DOWN}
 
@@ -180,9 +208,32 @@ class PacketReader:
         return out
 
 
+# gripper state byte (the TIMER high byte) and the DIGIN bits of the gripper: module docstring
+GRIP_OPEN_BIT, GRIP_CLOSED_BIT, GRIP_MOVING_BIT = 0x01, 0x02, 0x04
+LIFT_UP_BIT, LIFT_DOWN_BIT, LIFT_MOVING_BIT = 0x10, 0x20, 0x40
+GRIP_BITS = {
+    "paddles_open": GRIP_OPEN_BIT,
+    "paddles_closed": GRIP_CLOSED_BIT,
+    "paddles_moving": GRIP_MOVING_BIT,
+    "lift_up": LIFT_UP_BIT,
+    "lift_down": LIFT_DOWN_BIT,
+    "lift_moving": LIFT_MOVING_BIT,
+}
+DIGIN_OUTER_BEAM, DIGIN_INNER_BEAM, DIGIN_LEFT_CONTACT, DIGIN_RIGHT_CONTACT = 0x04, 0x08, 0x10, 0x20
+DIGIN_BITS = {
+    "outer_beam": DIGIN_OUTER_BEAM,  # 1 = broken
+    "inner_beam": DIGIN_INNER_BEAM,  # 1 = broken
+    "left_contact": DIGIN_LEFT_CONTACT,  # 0 = touching
+    "right_contact": DIGIN_RIGHT_CONTACT,  # 0 = touching
+}
+# STALL AND BUMPERS and FLAGS bits
+STALL_LEFT, STALL_RIGHT = 0x0001, 0x0100
+FLAG_MOTORS = 0x0001
+
+
 @dataclass(frozen=True)
 class Sip:
-    """A decoded standard SIP in the robot's raw units (see the module docstring)."""
+    """A decoded standard SIP in the robot's raw units (the table in the module docstring)."""
 
     moving: bool
     xpos: int
@@ -194,8 +245,7 @@ class Sip:
     stall_bumpers: int
     flags: int
     sonars: tuple[tuple[int, int], ...]  # (number, raw range)
-    gripper: int | None = None
-    analog_port: int | None = None
+    timer: int | None = None  # 2 bytes; the high byte is the gripper state byte
     analog: int | None = None
     digin: int | None = None
     digout: int | None = None
@@ -204,19 +254,77 @@ class Sip:
 
     @property
     def stalled(self) -> bool:
-        return bool(self.stall_bumpers & 0x0101)
+        return bool(self.stall_bumpers & (STALL_LEFT | STALL_RIGHT))
+
+    @property
+    def stall(self) -> tuple[bool, bool]:
+        """(left wheel, right wheel) stalled."""
+        return bool(self.stall_bumpers & STALL_LEFT), bool(self.stall_bumpers & STALL_RIGHT)
+
+    @property
+    def front_bumpers(self) -> int:
+        """Front bumper segments pressed: bit i = segment i + 1."""
+        return (self.stall_bumpers >> 9) & 0x7F
+
+    @property
+    def rear_bumpers(self) -> int:
+        """Rear bumper segments pressed: bit i = segment i + 1."""
+        return (self.stall_bumpers >> 1) & 0x7F
+
+    @property
+    def gripper(self) -> int | None:
+        """The gripper state byte (TIMER high byte), None when the SIP ends after the sonars."""
+        return None if self.timer is None else self.timer >> 8
 
     @property
     def motors_enabled(self) -> bool:
-        return bool(self.flags & 1)
+        return bool(self.flags & FLAG_MOTORS)
 
     @property
     def volts(self) -> float:
         return (self.battery_x10 if self.battery_x10 else self.battery) / 10.0
 
 
-_SIP_HEAD = struct.Struct("<BHHhhhBHhHBB")  # type .. sonar count: 20 bytes
-_SIP_TAIL = struct.Struct("<BBBBBHB")  # gripper .. charge state: 8 bytes
+@dataclass(frozen=True)
+class GripperState:
+    """The Pioneer gripper as a SIP reports it (module docstring tables).
+
+    ``paddles``: "open", "closed", "opening", "closing", "moving" (direction not reported),
+    "between" (stopped, neither open nor closed) or "error"; ``lift``: "up", "down", "raising",
+    "lowering", "moving", "between" (stopped between its ends) or "stalled" (neither at an end nor
+    moving); ``beams``: bit 0 inner, bit 1 outer broken; ``contacts``: bit 0 left, bit 1 right
+    paddle touching."""
+
+    paddles: str
+    lift: str
+    beams: int
+    contacts: int
+
+
+def gripper_state(grip: int, digin: int) -> GripperState:
+    """Decode the gripper state byte and DIGIN (module docstring)."""
+    opened, closed = bool(grip & GRIP_OPEN_BIT), bool(grip & GRIP_CLOSED_BIT)
+    if grip & GRIP_MOVING_BIT:
+        paddles = "opening" if opened and not closed else "closing" if closed and not opened else "moving"
+    elif opened and closed:
+        paddles = "error"
+    else:
+        paddles = "open" if opened else "closed" if closed else "between"
+    up, down = bool(grip & LIFT_UP_BIT), bool(grip & LIFT_DOWN_BIT)
+    if grip & LIFT_MOVING_BIT:
+        lift = "raising" if up and not down else "lowering" if down and not up else "moving"
+    elif up and down:
+        lift = "between"
+    else:
+        lift = "up" if up else "down" if down else "stalled"
+    beams = (1 if digin & DIGIN_INNER_BEAM else 0) | (2 if digin & DIGIN_OUTER_BEAM else 0)
+    contacts = (0 if digin & DIGIN_LEFT_CONTACT else 1) | (0 if digin & DIGIN_RIGHT_CONTACT else 2)
+    return GripperState(paddles, lift, beams, contacts)
+
+
+_SIP_HEAD = struct.Struct("<BHHhhhBHhHBB")  # TYPE .. SONAR COUNT: 20 bytes
+_SIP_TAIL = struct.Struct("<HBBBHB")  # TIMER .. CHARGESTATE: 8 bytes
+_SIP_IO = struct.Struct("<HBBB")  # TIMER .. DIGOUT: a P2OS SIP without the ARCOS fields
 
 
 def is_sip(payload: bytes) -> bool:
@@ -234,9 +342,11 @@ def decode_sip(payload: bytes) -> Sip:
     if len(payload) < end:
         raise ValueError(f"SIP announces {n} sonar readings but ends after {(len(payload) - _SIP_HEAD.size) // 3}")
     sonars = tuple(struct.iter_unpack("<BH", payload[_SIP_HEAD.size : end]))
-    tail: tuple = (None,) * 7
+    tail: tuple = (None,) * 6
     if len(payload) >= end + _SIP_TAIL.size:
         tail = _SIP_TAIL.unpack_from(payload, end)
+    elif len(payload) >= end + _SIP_IO.size:
+        tail = (*_SIP_IO.unpack_from(payload, end), None, None)
     return Sip(typ == SIP_MOVING, x & 0x7FFF, y & 0x7FFF, th & 0xFFF, lv, rv, batt, sb, flags, sonars, *tail)
 
 

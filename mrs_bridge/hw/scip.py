@@ -1,26 +1,51 @@
-"""Hokuyo SCIP 2.0 codec: commands, answer frames, check characters, the 6-bit character coding (no I/O).
+"""Hokuyo SCIP 2.0 codec: commands, answer frames, check characters, the character coding (no I/O).
 
-Spec: Hokuyo's "URG Series Communication Protocol Specification SCIP-Version 2.0", the protocol of
-the URG-04LX / UTM-30LX lasers of the thesis (A.2; Player's ``hokuyo_aist``). Moved here from the
-``hokuyo`` driver unchanged.
+Spec: Hokuyo Automatic's "URG Series Communication Protocol Specification SCIP 2.0" (the protocol
+of the URG-04LX and UTM-30LX of the thesis, A.2; Player's ``hokuyo_aist``). Section numbers below
+are that document's chapters as this codec reads them: communication format, data encoding, and the
+command reference.
 
-SCIP 2.0 in brief, as implemented here:
+**Framing** (communication format): the host sends one command line ending in LF (CR and CR LF are
+accepted too). The sensor answers with a block ended by an empty line (two LFs)::
 
-- A command is one line ending in LF (``VV``, ``PP``, ``BM``, ``QT``, ``GD...``, ``MD...``,
-  ``SCIP2.0``). The sensor answers with a block of lines ended by an empty line: the echo of the
-  command, a status line of two characters plus a check character (``00P`` = ok; ``99b`` = a scan
-  of a running ``MD``), then data lines, each with its own check character.
-- The check character of a line is ``(sum of its bytes & 0x3F) + 0x30``. For ``key:value;`` lines
-  of ``VV``/``PP`` it covers the bytes before the ``;`` (firmware that includes the ``;`` is
-  accepted as well).
-- ``GD``/``MD`` carry ``start`` and ``end`` steps (4 digits), the cluster count (2 digits, steps
-  merged into one reading), ``MD`` also the scan interval (1 digit) and the number of scans (2
-  digits, ``00`` for endless). Each scan is a time stamp (4 characters) and the ranges in mm, three
-  characters per reading, every character ``c - 0x30`` holding 6 bits, most significant first; the
-  data is cut into lines of 64 characters plus a check character.
-- ``PP`` gives the geometry: ``DMIN``/``DMAX`` (mm), ``ARES`` (steps per revolution), ``AMIN``/
-  ``AMAX`` (first/last measuring step), ``AFRT`` (the step straight ahead), ``SCAN`` (rpm). Step
-  ``s`` points at ``(s - AFRT) * 2 pi / ARES`` rad.
+    echo of the command  LF
+    status (2 characters)  check character  LF
+    data line  check character  LF        (zero or more; 64 data characters at most per line)
+    LF
+
+The **check character** of a line is ``(sum of its bytes & 0x3F) + 0x30`` (:func:`check_char`): "00"
+carries "P", "99" carries "b". For the ``key:value;`` lines of ``VV``/``PP``/``II`` the sum covers
+the bytes before the ``;`` (firmware that includes the ``;`` is accepted as well).
+
+**Data encoding**: a value is cut into 6-bit groups, most significant first, each sent as the
+character ``group + 0x30`` (0x30..0x6F): 2 characters (12 bits; ``GS``/``MS``), 3 characters (18
+bits; ``GD``/``MD`` ranges in mm), 4 characters (24 bits; the time stamp in ms).
+(:func:`encode_values`, :func:`decode_values`). A scan's characters run on over lines of 64.
+
+**Commands** used here (:data:`COMMANDS`):
+
+=========== ===================================================================================
+command     answer
+=========== ===================================================================================
+``SCIP2.0`` switch a SCIP 1.1 sensor to 2.0 (a sensor already in 2.0 may answer ``00`` or an
+            "undefined command" status; the driver accepts both)
+``VV``      version lines ``VEND``, ``PROD``, ``FIRM``, ``PROT``, ``SERI``
+``PP``      geometry lines ``MODL``, ``DMIN``/``DMAX`` (mm), ``ARES`` (steps per revolution),
+            ``AMIN``/``AMAX`` (first/last measuring step), ``AFRT`` (the step straight ahead),
+            ``SCAN`` (rpm); step ``s`` points at ``(s - AFRT) * 2 pi / ARES`` rad
+``II``      state lines (``MODL``, ``LASR`` on/off, ``SCSP``, ``MESM``, ``SBPS``, ``TIME``, ``STAT``)
+``BM``      laser on; ``QT`` laser off (and stop ``MD``); ``RS`` reset to the power-on state
+``GDssss``  one scan: start step, end step (4 digits each), cluster count (2 digits: steps
+``eeeecc``  merged into one reading, their minimum); answer: time stamp line, then the ranges
+``MDssss``  as ``GD`` plus the scan interval (1 digit, scans skipped) and the number of scans (2
+``eeeeccin``  digits, ``00`` endless): first answered ``00`` with no data, then every scan with status
+            ``99`` and the echo's last two digits counting the scans left
+=========== ===================================================================================
+
+**Status codes** (:data:`STATUS_COMMON`, :data:`STATUS_BY_COMMAND`, :func:`status_text`): ``00`` ok,
+``99`` scan data follows; the common errors ``0A``..``0I`` (any command); per command as listed
+(e.g. ``GD`` ``04`` end step out of range, ``05`` end step before the start step, ``10`` laser off;
+``BM`` ``02`` already on); ``MD`` ``50``..``97`` hardware trouble.
 """
 
 from __future__ import annotations
@@ -35,7 +60,10 @@ from rsal.errors import RsalError
 __all__ = [
     "LINE",
     "MODELS",
+    "COMMANDS",
     "STATUS",
+    "STATUS_BY_COMMAND",
+    "STATUS_COMMON",
     "Frame",
     "ScipError",
     "ScipParams",
@@ -47,6 +75,7 @@ __all__ = [
     "params_from_pp",
     "parse_fields",
     "parse_frame",
+    "status_text",
 ]
 
 LINE = 64  # data characters per line before the check character
@@ -82,19 +111,67 @@ MODELS: dict[str, ScipParams] = {
     "UTM-30LX": ScipParams("UTM-30LX", 23, 60000, 1440, 0, 1080, 540, 2400),
 }
 
-#: meanings of the status codes this driver may see (others are reported by number)
-STATUS = {
+#: the commands this codec frames and what their answers carry (module docstring)
+COMMANDS = ("SCIP2.0", "VV", "PP", "II", "BM", "QT", "RS", "GD", "GS", "MD", "MS")
+
+#: status codes any command may answer (the specification's common error list)
+STATUS_COMMON = {
     b"00": "ok",
     b"99": "scan data",
-    b"01": "invalid start step",
-    b"02": "invalid end step (or: the laser was already on)",
-    b"03": "invalid cluster count",
-    b"04": "end step before start step",
-    b"0E": "already in SCIP 2.0 mode",
-    b"0L": "unknown command",
-    b"10": "the laser is off",
-    b"50": "hardware error",
+    b"0A": "unable to create transmission data or reply command internally",
+    b"0B": "buffer shortage, or a command repeated that is already being processed",
+    b"0C": "command with insufficient parameters (1)",
+    b"0D": "undefined command (1)",
+    b"0E": "undefined command (2)",
+    b"0F": "command with insufficient parameters (2)",
+    b"0G": "string in the command exceeds 16 characters",
+    b"0H": "string has invalid characters",
+    b"0I": "sensor in firmware update mode",
 }
+
+_SCAN_STATUS = {
+    b"01": "start step not a number",
+    b"02": "end step not a number",
+    b"03": "cluster count not a number",
+    b"04": "end step out of range",
+    b"05": "end step before the start step",
+}
+#: per-command status codes
+STATUS_BY_COMMAND = {
+    b"BM": {b"01": "unable to control the laser (laser malfunction)", b"02": "the laser was already on"},
+    b"GD": {**_SCAN_STATUS, b"10": "the laser is off"},
+    b"GS": {**_SCAN_STATUS, b"10": "the laser is off"},
+    b"MD": {
+        **_SCAN_STATUS,
+        b"06": "scan interval not a number",
+        b"07": "number of scans not a number",
+        b"98": "resumed after the laser was confirmed working again",
+    },
+    b"MS": {
+        **_SCAN_STATUS,
+        b"06": "scan interval not a number",
+        b"07": "number of scans not a number",
+        b"98": "resumed after the laser was confirmed working again",
+    },
+}
+
+#: the common codes; kept for callers that look a status up without its command
+STATUS = STATUS_COMMON
+
+
+def status_text(cmd: bytes, status: bytes) -> str:
+    """What ``status`` means in the answer to ``cmd`` (the specification's tables)."""
+    op = cmd[:2]
+    if status in STATUS_COMMON:
+        return STATUS_COMMON[status]
+    text = STATUS_BY_COMMAND.get(op, {}).get(status)
+    if text:
+        return text
+    if op in (b"MD", b"MS") and status.isdigit() and 21 <= int(status) <= 49:
+        return "processing stopped to verify an error"
+    if status.isdigit() and 50 <= int(status) <= 97:
+        return "hardware trouble (laser, motor ...)"
+    return "error"
 
 
 # ---------------------------------------------------------------------------- codec

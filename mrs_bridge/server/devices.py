@@ -22,6 +22,7 @@ from rsal import keys
 from rsal.client import query_rpc
 from rsal.keys import DeviceAddr
 from rsal.msgs import encode
+from rsal.ownership import DeviceToken
 
 from ..driver import Driver
 from .intake import MAX_PAYLOAD
@@ -68,7 +69,7 @@ class _Devices:
             if dev is None:
                 continue
             if online and dev.token is None:
-                dev.token = self.session.liveliness().declare_token(keys.device_key(dev.addr))
+                dev.token = DeviceToken(self.session, keys.device_key(dev.addr))
             elif not online and dev.token is not None:
                 try:
                     dev.token.undeclare()
@@ -103,7 +104,7 @@ class _Devices:
         for a in slot.driver.cfg.provides:
             dev = self.devices.get(a.without_key())
             if dev is not None and dev.token is None:
-                dev.token = self.session.liveliness().declare_token(keys.device_key(dev.addr))
+                dev.token = DeviceToken(self.session, keys.device_key(dev.addr))
 
     # ------------------------------------------------------------------ outbound
     def publish(self, addr: DeviceAddr, msg) -> None:

@@ -2,9 +2,10 @@
 ``writelog``/``readlog`` and ROS 2's ``rosbag2`` do), in MCAP files (https://mcap.dev).
 
 :mod:`~rsal.record.format` (the MCAP layout: channels, metadata, times), :mod:`~rsal.record.recorder`
-(:class:`Recorder`: subscriptions, one writer thread), :mod:`~rsal.record.player` (:class:`Recording`,
-a sequential reader that survives a truncated file; :class:`Player`: devices re-created, samples
-re-published with their timing), :mod:`~rsal.record.cli` (the two commands). ``docs/recording.md``
+(:class:`Recorder`: subscriptions, one writer thread), :mod:`~rsal.record.reading` (:class:`Recording`:
+indexed reads, and a sequential reader that survives a truncated file), :mod:`~rsal.record.player`
+(:class:`Player`: devices re-created, samples re-published with their timing, a control
+device), :mod:`~rsal.record.cli` (the two commands). ``docs/recording.md``
 describes the commands and the file layout.
 """
 

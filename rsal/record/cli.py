@@ -1,6 +1,7 @@
 """``rsal record`` and ``rsal play``: the command-line side of :mod:`rsal.record`.
 
-``rsal play`` pauses and resumes with the space bar when run in a terminal. Progress goes to stderr
+``rsal play`` pauses and resumes with the space bar when run in a terminal, and by the rpcs of its
+control device ``rsal/play/player/0`` (``--control NODE``). Progress goes to stderr
 at most once a second (one line rewritten in place on a terminal, a new line otherwise), a summary
 line at the end; SIGTERM and Ctrl-C end a recording cleanly (the file gets its index). See
 ``docs/recording.md``.
@@ -142,6 +143,10 @@ def run_play(args: argparse.Namespace) -> int:
     if args.start < 0:
         raise RecordingError(f"--start {args.start:g} must be >= 0 seconds into the recording")
     remap = parse_remap(args.remap)  # the flags first, then the files
+    if args.control:
+        from ..keys import check_name
+
+        check_name("--control node", args.control)
     rec = Recording(*args.file)
     opts = PlayOptions(
         rate=args.rate,
@@ -152,20 +157,22 @@ def run_play(args: argparse.Namespace) -> int:
         delay=args.delay,
         commands=args.commands,
         services=args.services,
+        control=None if args.control == "" else args.control,
+        paused=args.paused,
     )
     stop = threading.Event()
     _stop_on_sigterm(stop)
     with open_session(TransportArgs.from_namespace(args)) as session:
         player = Player(session, rec, opts)
         n = player.prepare()
-        note = check_profile(rec)
-        if note:
-            print(f"rsal play: {note}", file=sys.stderr)
-        if rec.skipped:
-            print(f"rsal play: {rec.skipped}", file=sys.stderr, flush=True)
+        resume = "space" + (f" or rsal/{opts.control}/player/0/rpc/resume" if opts.control else "")
+        notes = [x for x in (check_profile(rec), rec.skipped) if x]
+        if notes:  # one line for whatever was not read as recorded
+            print(f"rsal play: {'; '.join(notes)}", file=sys.stderr, flush=True)
         _progress_line(
             f"[play] {rec.path}: {n} samples, {player.stats.duration:.1f} s, "
             f"{len(player._devices)} devices; rate {args.rate:g}"
+            + (f"; paused (resume: {resume})" if args.paused else "")
         )
         threading.Thread(target=lambda: (stop.wait(), player.stop()), daemon=True).start()
         _keyboard(player, stop)
@@ -232,5 +239,16 @@ def register(sub) -> None:
     p.add_argument("--devices", metavar="TEMPLATE", help="play only these devices, e.g. 'r0:*:*'")
     p.add_argument("--commands", action="store_true", help="also publish recorded commands (they move live robots)")
     p.add_argument("--services", action="store_true", help="also publish recorded agent service messages")
+    p.add_argument(
+        "--paused",
+        action="store_true",
+        help="start paused: the devices come up, the samples wait for the space bar or the resume rpc",
+    )
+    p.add_argument(
+        "--control",
+        default="play",
+        metavar="NODE",
+        help="node of the control device rsal/NODE/player/0 (pause, resume, status, seek; default 'play', '' for none)",
+    )
     add_transport_args(p)
     p.set_defaults(func=run_play)

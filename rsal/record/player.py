@@ -1,8 +1,10 @@
 """The player behind ``rsal play``: a recording's devices back on the fabric (Player's ``readlog``).
 
-Reads a file written by :class:`rsal.record.Recorder` (layout: :mod:`rsal.record.format`) with the
-``mcap`` package's sequential reader, so a file without its index (a recorder killed with SIGKILL)
-or cut short plays as far as it is valid, and :attr:`Recording.skipped` says what was not.
+Reads a file written by :class:`rsal.record.Recorder` (layout: :mod:`rsal.record.format`) through
+:class:`rsal.record.reading.Recording`: with the MCAP index when the file has one (``--start`` then
+decompresses only the chunks from that moment on), front to back otherwise, so a file without its
+index (a recorder killed with SIGKILL) or cut short plays as far as it is valid, and
+:attr:`Recording.skipped` says what was not.
 
 For each recorded device the player declares, in this order, a queryable on ``rpc/*`` answering
 ``describe`` with the recorded reply (other operations: ``unavailable``, a recording cannot act),
@@ -11,136 +13,39 @@ the recording saw it leave. Samples are published on their recorded keys with th
 at their recorded receive times scaled by ``rate`` (0: as fast as it goes). ``remap`` renames nodes
 (``r0=r5``) or key prefixes (``rsal/r0=rsal/ghost``); the ``node`` field of a replayed ``describe``
 follows the rename, sample bytes never change.
-"""
+
+With ``control`` (``rsal play`` sets node ``play``) the player is itself a device,
+``rsal/<control>/player/0`` (docs/protocol.md) with the rpcs ``pause``, ``resume``, ``status`` and
+``seek`` (it publishes no data: a subscriber to the replayed keys gets nothing else). The keyboard
+and the rpcs go through the same :meth:`Player.pause`, :meth:`Player.resume` and
+:meth:`Player.seek`; the playback clock stops while paused, so the recorded spacing of
+the samples continues after a resume (no burst)."""
 
 from __future__ import annotations
 
 import dataclasses
 import logging
-import os
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterator
-from pathlib import Path
+from collections.abc import Callable
 
 import ormsgpack
 import zenoh
-from mcap.stream_reader import StreamReader
 
 from .. import keys
-from ..msgs import ErrorCode, error_reply
-from .format import MAGIC, PROFILE, RecordingError
+from ..msgs import ErrorCode, error_reply, ok_reply
+from ..ownership import DeviceToken
+from .format import RecordingError
+from .reading import Recording, Sample
+from .reading import alive as _alive
 
-__all__ = ["Recording", "Sample", "Player", "PlayOptions", "parse_remap"]
+__all__ = ["Recording", "Sample", "Player", "PlayOptions", "PlayStats", "parse_remap", "CONTROL_OPS"]
+
+#: the operations of the player's control device (``rsal/<node>/player/0``), ``describe`` first
+CONTROL_OPS = ("describe", "pause", "resume", "status", "seek")
 
 log = logging.getLogger(__name__)
-
-
-@dataclasses.dataclass(frozen=True)
-class Sample:
-    kind: str  # format.KINDS
-    key: str
-    data: bytes
-    log_time: int  # ns, receive time
-    publish_time: int  # ns, source time
-
-
-class Recording:
-    """A recording: one file, or the parts of a split one in order, read sequentially;
-    :attr:`skipped` says what was not valid (a file cut short or without its index)."""
-
-    def __init__(self, *paths: str | os.PathLike):
-        if not paths:
-            raise RecordingError("no recording given; name the .mcap file 'rsal record -o' wrote")
-        self.paths = [Path(p) for p in paths]
-        for path in self.paths:
-            _check_file(path)
-        self.path = self.paths[0] if len(self.paths) == 1 else Path(f"{self.paths[0]} (+{len(self.paths) - 1} parts)")
-        self._skipped: list[str] = []
-        self.profile: str | None = None
-
-    @property
-    def skipped(self) -> str | None:
-        return "; ".join(self._skipped) if self._skipped else None
-
-    def samples(self) -> Iterator[Sample]:
-        """Every recorded message in file order, part after part; a part is read up to its first
-        invalid record, noted in :attr:`skipped`."""
-        self._skipped = []
-        for path in self.paths:
-            yield from self._file_samples(path)
-
-    def _file_samples(self, path: Path) -> Iterator[Sample]:
-        channels: dict[int, tuple[str, str]] = {}
-        size = path.stat().st_size
-        with open(path, "rb") as f:
-            it = iter(StreamReader(f, validate_crcs=True).records)
-            good = 0  # the file offset after the last complete record
-            while True:
-                try:
-                    rec = next(it)
-                    good = _tell(f)
-                except StopIteration:
-                    return
-                except Exception as e:  # truncated or corrupt: play what came before
-                    left = max(size - good, 0)
-                    if left == 0:
-                        self._skipped.append(
-                            f"{path}: ends without its index (the recorder was stopped abruptly); "
-                            "read every complete chunk, the chunk it was writing is lost"
-                        )
-                    else:
-                        self._skipped.append(
-                            f"{path}: read up to the last complete chunk; skipped the rest "
-                            f"({left / 1024:.1f} KB of {size / 1024:.0f} KB: {_why(e)})"
-                        )
-                    return
-                name = type(rec).__name__
-                if name == "Header":
-                    self.profile = rec.profile
-                elif name == "Channel":
-                    channels[rec.id] = (rec.topic, rec.metadata.get("kind", "data"))
-                elif name == "Message":
-                    ch = channels.get(rec.channel_id)
-                    if ch is not None:
-                        yield Sample(ch[1], ch[0], rec.data, rec.log_time, rec.publish_time)
-                elif name in ("DataEnd", "Footer"):
-                    return  # the summary section repeats what came before
-
-
-def _check_file(path: Path) -> None:
-    try:
-        with open(path, "rb") as f:
-            head = f.read(len(MAGIC))
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: no such file; give the .mcap file 'rsal record -o' wrote") from None
-    except OSError as e:
-        raise RecordingError(f"{path}: cannot be read: {e.strerror or e}") from None
-    if not head:
-        raise RecordingError(f"{path}: the file is empty (not a recording); record one with 'rsal record'")
-    if head != MAGIC:
-        raise RecordingError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
-
-
-def _alive(data: bytes) -> bool:
-    try:
-        m = ormsgpack.unpackb(data)
-    except Exception:
-        return False
-    return isinstance(m, dict) and m.get("alive") is True
-
-
-def _tell(f) -> int:
-    try:
-        return f.tell()
-    except (OSError, ValueError):
-        return 0
-
-
-def _why(e: BaseException) -> str:
-    text = str(e).strip().splitlines()[0] if str(e).strip() else ""
-    return f"{type(e).__name__}: {text}" if text else type(e).__name__
 
 
 def parse_remap(items: list[str]) -> list[tuple[str, str]]:
@@ -167,6 +72,8 @@ class PlayOptions:
     remap: list[tuple[str, str]] = dataclasses.field(default_factory=list)
     devices: str | None = None  # template of the devices to play
     delay: float = 0.0  # s to wait before the first sample (subscribers connect meanwhile)
+    control: str | None = None  # node of the control device rsal/<control>/player/0 (None: none)
+    paused: bool = False  # start paused: the devices come up, the samples wait for resume()
     commands: bool = False  # also publish recorded commands (they would move live robots)
     services: bool = False  # also publish recorded agent service messages
 
@@ -208,6 +115,12 @@ class Player:
         self._filter = zenoh.KeyExpr(keys.template_to_keyexpr(self.opts.devices)) if self.opts.devices else None
         self._remap_cache: dict[str, str] = {}
         self._queries: queue.SimpleQueue = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self._seek_to: float | None = None
+        self._delayed = False  # opts.delay is waited once, before the first sample
+        self._control = None
+        if self.opts.paused:
+            self.pause()
         self._answerer = threading.Thread(target=self._answer_queries, name="rsal-play-rpc", daemon=True)
         self._answerer.start()
 
@@ -238,28 +151,31 @@ class Player:
 
     # ------------------------------------------------------------------ playing
     def prepare(self) -> int:
-        """First pass: every device's ``describe`` reply and the recording's length; returns the
-        number of samples to play. Raises :class:`RecordingError` when there are none."""
-        first = last = None
-        n = 0
-        for s in self.rec.samples():
-            if s.kind == "rpc" and s.key.endswith("/rpc/describe"):
-                self._device(s.key.rsplit("/rpc/", 1)[0]).describe = s.data
-            elif s.kind == "liveliness":
-                self._device(s.key).has_tokens = True
-            elif s.kind in ("data", "event", "cmd", "svc") and self._wanted(s.kind, s.key):
-                n += 1
-            first = s.log_time if first is None else first
-            last = s.log_time
-        if n == 0:
+        """What the recording holds (from its index when it has one): every device's ``describe``
+        reply and the recording's length; returns the number of samples to play. Raises
+        :class:`RecordingError` when there are none. Declares the control device."""
+        c = self.rec.contents()
+        for token_key, data in c.describes.items():
+            self._device(token_key).describe = data
+        for token_key in c.live_keys:
+            self._device(token_key).has_tokens = True
+        n = sum(
+            k
+            for (kind, key), k in c.counts.items()
+            if kind in ("data", "event", "cmd", "svc") and self._wanted(kind, key)
+        )
+        if n == 0 or c.first_ns is None:
             what = f" of devices {self.opts.devices!r}" if self.opts.devices else ""
             raise RecordingError(f"{self.rec.path}: holds no recorded samples{what}; nothing to play")
-        self._t0 = first
-        self.stats.duration = (last - first) / 1e9
+        self._t0 = c.first_ns
+        self.stats.duration = (c.last_ns - c.first_ns) / 1e9
         if self.opts.start > self.stats.duration:
             raise RecordingError(
                 f"--start {self.opts.start:g} is past the end of {self.rec.path} ({self.stats.duration:.1f} s long)"
             )
+        self.stats.position = self.opts.start
+        if self.opts.control and self._control is None:
+            self._declare_control(self.opts.control)
         return n
 
     def _device(self, token_key: str) -> _Device:
@@ -275,7 +191,7 @@ class Player:
                 dev.queryable = self.session.declare_queryable(
                     f"{self._map(token_key)}/rpc/*", lambda q, d=dev: self._queries.put((d, q))
                 )
-            dev.token = self.session.liveliness().declare_token(self._map(token_key))
+            dev.token = DeviceToken(self.session, self._map(token_key))
             self.stats.devices.add(token_key)
         elif not alive and dev.token is not None:
             dev.token.undeclare()
@@ -290,8 +206,11 @@ class Player:
                 return
             self._answer(*item)
 
-    def _answer(self, dev: _Device, query) -> None:
+    def _answer(self, dev: _Device | None, query) -> None:
         try:
+            if dev is None:
+                self._answer_control(query)
+                return
             op = str(query.key_expr).rsplit("/", 1)[-1]
             if op in ("describe", "*", "**") and dev.describe is not None:
                 query.reply(f"{self._map(dev.token_key)}/rpc/describe", self._describe_bytes(dev))
@@ -334,12 +253,23 @@ class Player:
         return self.stats
 
     def _one_pass(self, progress) -> None:
-        start_ns = self._t0 + int(self.opts.start * 1e9)
+        start = self.opts.start
+        while True:
+            start = self._play_from(start, progress)
+            if start is None:
+                return
+
+    def _play_from(self, start: float, progress) -> float | None:
+        """Play from ``start`` s into the recording to its end; returns where to go on after a
+        :meth:`seek`, None at the end or when stopped."""
+        start_ns = self._t0 + int(start * 1e9)
         self._wall0: float | None = None
         next_report = 0.0
-        for s in self.rec.samples():
+        for s in self.rec.samples(start_ns if start > 0 else None):
             if self._stop.is_set():
-                return
+                return None
+            if self._seek_to is not None:
+                return self._take_seek()
             if s.kind == "rpc":
                 continue
             live = s.kind == "liveliness"
@@ -350,7 +280,7 @@ class Player:
                     self._set_alive(s.key, _alive(s.data))
                 continue
             if not self._wait_for(s.log_time, start_ns):
-                return
+                return self._take_seek() if self._seek_to is not None else None
             if live:
                 self._set_alive(s.key, _alive(s.data))
                 continue
@@ -366,20 +296,31 @@ class Player:
             if progress is not None and now >= next_report:
                 next_report = now + 1.0
                 progress(self.stats)
+        return self._take_seek() if self._seek_to is not None else None
+
+    def _take_seek(self) -> float:
+        with self._lock:
+            t, self._seek_to = self._seek_to, None
+        self.stats.position = t
+        return t
 
     def _wait_for(self, log_time: int, start_ns: int) -> bool:
-        """Sleep until ``log_time``'s moment of the playback; False when stopped meanwhile."""
+        """Sleep until ``log_time``'s moment of the playback; False when stopped or sought meanwhile."""
         if self._wall0 is None:
-            if self.stats.passes == 0 and self.opts.delay > 0 and self._stop.wait(self.opts.delay):
-                return False  # the devices are up; subscribers get the delay to find them
+            if not self._delayed:
+                self._delayed = True
+                if self.opts.delay > 0 and self._stop.wait(self.opts.delay):
+                    return False  # the devices are up; subscribers get the delay to find them
             self._wall0 = time.monotonic()
         while True:
             if not self._running.is_set():  # paused: the clock of the playback stops with it
                 paused_at = time.monotonic()
                 while not self._running.wait(0.05):
-                    if self._stop.is_set():
+                    if self._stop.is_set() or self._seek_to is not None:
                         return False
                 self._wall0 += time.monotonic() - paused_at
+            if self._seek_to is not None:
+                return False
             if self.opts.rate <= 0:
                 return not self._stop.is_set()
             wait = self._wall0 + (log_time - start_ns) / 1e9 / self.opts.rate - time.monotonic()
@@ -391,13 +332,94 @@ class Player:
 
     def pause(self) -> None:
         """Hold the playback (the devices stay up and answer ``describe``); :meth:`resume` goes on
-        where it stopped, with the recorded timing."""
+        where it stopped, with the recorded timing. The keyboard and the ``pause`` rpc call this."""
         self._running.clear()
         self.stats.paused = True
 
     def resume(self) -> None:
         self._running.set()
         self.stats.paused = False
+
+    def seek(self, t: float) -> None:
+        """Go on from ``t`` seconds into the recording (read through the index where there is one);
+        a paused playback stays paused there."""
+        if not 0.0 <= t <= self.stats.duration:
+            raise RecordingError(f"seek to {t:g} s: outside the recording (0 to {self.stats.duration:.1f} s)")
+        with self._lock:
+            self._seek_to = float(t)
+
+    def status(self) -> dict:
+        st = self.stats
+        return {
+            "position": round(st.position, 6),
+            "duration": round(st.duration, 6),
+            "rate": self.opts.rate,
+            "paused": st.paused,
+            "messages": st.messages,
+            "passes": st.passes,
+            "devices": st.alive,
+        }
+
+    # ------------------------------------------------------------------ the control device
+    def _declare_control(self, node: str) -> None:
+        keys.check_name("node", node)
+        base = f"{keys.PREFIX}/{node}/player/0"
+        self._control_describe = ok_reply(
+            node=node,
+            interface="player",
+            index=0,
+            driver="play",
+            rate=0.0,
+            geometry={"files": [str(p) for p in self.rec.paths], "duration": self.stats.duration},
+            ops=list(CONTROL_OPS),
+            cmd="",
+            data="",
+            protocol=keys.PROTOCOL_VERSION,
+        )
+        q = self.session.declare_queryable(f"{base}/rpc/*", lambda query: self._queries.put((None, query)))
+        self._control = (base, q, DeviceToken(self.session, base))
+
+    def _answer_control(self, query) -> None:
+        base = self._control[0]
+        op = str(query.key_expr).rsplit("/", 1)[-1]
+        if op in ("describe", "*", "**"):
+            query.reply(f"{base}/rpc/describe", self._control_describe)
+            return
+        if op not in CONTROL_OPS:
+            query.reply_err(
+                error_reply(ErrorCode.NOT_FOUND, f"{base}: no operation {op!r}; it has {', '.join(CONTROL_OPS)}")
+            )
+            return
+        args = {}
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        if payload:
+            try:
+                args = ormsgpack.unpackb(payload)
+            except Exception:
+                args = None
+            if not isinstance(args, dict):
+                query.reply_err(
+                    error_reply(ErrorCode.BAD_REQUEST, f"{base}/rpc/{op}: the arguments must be a msgpack map")
+                )
+                return
+        if op == "pause":
+            self.pause()
+        elif op == "resume":
+            self.resume()
+        elif op == "seek":
+            t = args.get("t")
+            if isinstance(t, bool) or not isinstance(t, (int, float)):
+                query.reply_err(
+                    error_reply(ErrorCode.BAD_REQUEST, f"{base}/rpc/seek needs 't', seconds into the recording")
+                )
+                return
+            try:
+                self.seek(float(t))
+            except RecordingError as e:
+                query.reply_err(error_reply(ErrorCode.OUT_OF_RANGE, f"{base}: {e}"))
+                return
+            self.stats.position = float(t)
+        query.reply(f"{base}/rpc/{op}", ok_reply(**self.status()))
 
     def close(self) -> None:
         self._queries.put(None)
@@ -415,10 +437,15 @@ class Player:
             except Exception:
                 pass
         self._pubs.clear()
+        if self._control is not None:
+            for ent in (self._control[2], self._control[1]):
+                try:
+                    ent.undeclare()
+                except Exception:
+                    pass
+            self._control = None
 
 
 def check_profile(rec: Recording) -> str | None:
     """A note when the file was not written by ``rsal record`` (played anyway, as far as it fits)."""
-    if rec.profile not in (None, PROFILE):
-        return f"{rec.path}: written with MCAP profile {rec.profile!r}, not {PROFILE!r}; playing the keys it holds"
-    return None
+    return rec.profile_note()

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..controllers import CONTROLLERS
 from ..errors import WorldFileError, did_you_mean
-from ..gridmap import image_size
+from ..gridmap import MAP_YAML_SUFFIXES, image_size, read_map_yaml
 from ..spec import FloorplanSpec, ModelSpec, WorldSpec, parse_color
 from .devices import DeviceMapping
 from .keywords import (
@@ -321,6 +321,8 @@ class Mapper(DeviceMapping):
                 bp.at.file,
                 bp.at.line,
             )
+        if path.suffix.lower() in MAP_YAML_SUFFIXES:
+            return self._map_yaml_floorplan(inst, name, path, rel, boundary)
         w, h = image_size(path, f"bitmap '{rel}'", bp.at.file, bp.at.line)
         px, py, pa = parse_pose(P["pose"]) if "pose" in P else (0.0, 0.0, 0.0)
         if pa != 0.0:
@@ -350,3 +352,34 @@ class Mapper(DeviceMapping):
         return FloorplanSpec(
             bitmap=path.absolute(), resolution=res, origin=origin, size=None, name=name, boundary=boundary
         )
+
+    def _map_yaml_floorplan(self, inst: Inst, name: str, path: Path, rel: str, boundary: bool) -> FloorplanSpec:
+        """A ``bitmap`` that is a ROS map_server YAML: the YAML places the map (its resolution and
+        origin); a ``size`` or ``pose`` that disagrees with it, ``origin`` or ``map_resolution``
+        are ignored with a warning."""
+        P = inst.props
+        bp = P["bitmap"]
+        fp = read_map_yaml(path, f"map '{rel}'", bp.at.file, bp.at.line, name)
+        fp.boundary = boundary
+        w, h = image_size(fp.bitmap, f"map '{rel}'", bp.at.file, bp.at.line)
+        res, (x0, y0) = fp.resolution, fp.origin
+        sx, sy = w * res, h * res
+
+        def why(key: str) -> str:
+            return (
+                f"floorplan '{name}': {key} ignored, the map_server YAML '{rel}' places the map "
+                f"({sx:g} x {sy:g} m from ({x0:g}, {y0:g})); remove it"
+            )
+
+        if (p := P.get("size")) is not None:
+            gx, gy, _ = parse_size(p, 0.0)
+            if abs(gx - sx) > res / 2 or abs(gy - sy) > res / 2:
+                self.warn(p.at, why("size"))
+        if (p := P.get("pose")) is not None:
+            px, py, _ = parse_pose(p)
+            if abs(px - (x0 + sx / 2)) > res / 2 or abs(py - (y0 + sy / 2)) > res / 2:
+                self.warn(p.at, why("pose"))
+        for key in ("origin", "map_resolution"):
+            if (p := P.get(key)) is not None:
+                self.warn(p.at, why(key))
+        return fp

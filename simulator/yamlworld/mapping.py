@@ -11,8 +11,9 @@ a bitmap (``size`` + centre ``pose``).
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
-from ..gridmap import image_size
+from ..gridmap import MAP_YAML_SUFFIXES, image_size, read_map_yaml
 from ..presets import OBJECT_PRESETS, ROBOT_PRESETS
 from ..spec import BlobfinderSpec, BumperSpec, FiducialSpec, FloorplanSpec, ModelSpec, RangerSpec, WorldSpec
 from .devices import DeviceSections
@@ -42,6 +43,12 @@ class Mapper(DeviceSections):
         if doc is None:
             raise self.error(1, "the world file is empty; add at least 'robots:' (see docs/simulator.md, YAML worlds)")
         top = self.mapping(doc, 1, "the world file", "world: {interval_sim: 0.1}  robots: [...]")
+        if "image" in top and "resolution" in top and not any(k in top for k in TOP_KEYS):
+            raise self.error(
+                1,
+                "this is a map_server map, not a world; use it as a world's floorplan: "
+                f"'floorplan: {{bitmap: {Path(self.file).name}}}' (see docs/mapping.md, 'Map files')",
+            )
         self.check_keys(top, TOP_KEYS, "the world file")
         spec = WorldSpec(source=self.file)
         if top.get("world") is not None:
@@ -104,8 +111,17 @@ class Mapper(DeviceSections):
                 line,
                 f"floorplan.bitmap '{rel}' not found (looked for {path}); the path is relative to this file",
             )
-        w, h = image_size(path, f"floorplan.bitmap '{rel}'", self.file, line)
         name = self.text(m, "name", where, "floorplan")
+        if path.suffix.lower() in MAP_YAML_SUFFIXES:
+            for key in ("resolution", "origin", "size", "pose", "threshold"):
+                if key in m:
+                    raise self.error(
+                        m.line_of(key),
+                        f"floorplan.{key}: the map_server YAML '{rel}' sets the map's placement and "
+                        f"thresholds itself; remove {key}",
+                    )
+            return read_map_yaml(path, f"floorplan.bitmap '{rel}'", self.file, line, name)
+        w, h = image_size(path, f"floorplan.bitmap '{rel}'", self.file, line)
         threshold = self.num(m, "threshold", where, 0.5, positive=True)
         if threshold >= 1:
             raise self.error(m.line_of("threshold"), "floorplan.threshold must be between 0 and 1; e.g. 0.5")

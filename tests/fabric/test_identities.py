@@ -28,6 +28,7 @@ import zenoh
 from rsal.client import query_rpc
 from rsal.keys import parse_device
 from rsal.msgs import decode_map, ok_reply
+from rsal.ownership import DeviceToken
 from rsal.secure import Fleet, Identity, SecureError
 from rsal.transport import TransportArgs, open_session
 from tests.conftest import Proc, free_port, rsal_cmd, wait_until
@@ -165,11 +166,13 @@ def test_a_fleet_member_cannot_forge_an_outcome_for_an_agent_it_does_not_run(fle
 
 def test_a_fleet_member_cannot_answer_another_robots_rpc(fleet):
     """Robot host r2 and agent host A (which may call r1's rpcs) both serve r1's ``describe``: only
-    r1's answers reach the operator, through Zenoh and through the project's rpc client."""
+    r1's answers reach the operator, through Zenoh and through the project's rpc client. Agent host
+    A's own rogue answer reaches A itself (a session's local queryables pass no router), and A's
+    rpc client drops it: A's session does not own r1's device."""
     _, s, _ = fleet
     key = "rsal/r1/position2d/0/rpc/describe"
     real = s["r1"].declare_queryable(key, lambda q: q.reply(q.key_expr, ok_reply(who="r1")))
-    token = s["r1"].liveliness().declare_token("rsal/r1/position2d/0")
+    token = DeviceToken(s["r1"], "rsal/r1/position2d/0")  # with its owner token, as r1's server declares it
     rogues = [s[n].declare_queryable(key, lambda q, n=n: q.reply(q.key_expr, ok_reply(who=n))) for n in ("r2", "hostA")]
     try:
         wait_until(lambda: _tokens(s["op"], "rsal/r1/**") == ["rsal/r1/position2d/0"], 20, "r1's token at the operator")

@@ -14,8 +14,15 @@ configured Zenoh lease (plus the keep-alive slack), r2's base, on the simulator 
 command timeout once its local planner's commands no longer arrive (simulator ground truth), while
 r1's devices stay and r1 keeps driving;
 when the cable is back, r2's devices return without any process being restarted, and the hunt
-ends with the prey caught. Skipped, with the reason, where
-namespaces cannot be made (not root, no iproute2).
+ends with the prey caught.
+
+The same hunt runs again in the **secured profile** (docs/security.md): ``rsal secure`` makes a
+fleet in a temporary folder with one identity per host (the simulator host for its nodes, robot
+hosts 1 and 2 for r1 and r2, the agent host for the scenario's agents and services, the runner and
+the watcher as operators), every process connects to ``rsal router`` with its own identity over
+TLS, and the prey is caught (simulator ground truth: the catcher within 2.5 m of the prey).
+
+Skipped, with the reason, where namespaces cannot be made (not root, no iproute2).
 """
 
 from __future__ import annotations
@@ -23,11 +30,14 @@ from __future__ import annotations
 import json
 import math
 import re
+import shutil
+import subprocess
 import sys
 import time
 
 import pytest
 
+from agents.scenario import load_scenario
 from tests.conftest import MAPS, ROOT, SPEEDUP, Proc, rsal_cmd, wait_until
 from tests.netns import Lan, unavailable
 
@@ -39,6 +49,7 @@ TUNING = ["--cfg", f"transport/link/tx/lease:{LEASE_MS}", "--cfg", "transport/li
 WORLD = MAPS / "hunt.world"
 POSES = {"r1": (-14.0, 1.75, 0.0), "r2": (10.0, 1.75, 180.0)}  # maps/hunt.world
 SCENARIO = ROOT / "deploy" / "scenarios" / "hunt_prey.yaml"
+HUNT_SERVICES = ("send_position", "outcome")
 
 
 def nav_config(tmp_path, robot: str) -> str:
@@ -193,6 +204,96 @@ def test_a_robot_host_cut_off_is_lost_the_others_continue_and_it_rejoins(lan, tm
             f"r2 lost {lost_after:.1f} s after the cut (lease {LEASE_MS / 1000:g} s); r2 moving at the cut: "
             f"{was_moving}, moved {drift:.3f} m from 1.5 s after it"
         )
+    finally:
+        for p in procs:
+            p.close()
+
+
+def _secure(fleet_dir, *argv):
+    r = subprocess.run(rsal_cmd("secure", *argv, "--dir", str(fleet_dir)), capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is needed to make certificates")
+@pytest.mark.timeout(600)
+def test_hunt_and_prey_across_hosts_in_the_secured_profile(lan, tmp_path):
+    router_ip = lan.host("router")
+    for host in ("sim", "robot1", "robot2", "agents"):
+        lan.host(host)
+    app = load_scenario(SCENARIO).applications["fleet"]
+    fleet = tmp_path / "fleet"
+    _secure(fleet, "init", "--host", router_ip, "--port", "7448")
+    _secure(fleet, "add-robot", "simhost", "--nodes", "sim,r0,r1,r2")
+    _secure(fleet, "add-robot", "robot1", "--nodes", "r1")
+    _secure(fleet, "add-robot", "robot2", "--nodes", "r2")
+    _secure(
+        fleet,
+        "add-agents",
+        "hunthost",
+        "--agents",
+        ",".join(a.id for a in app.agents),
+        "--services",
+        ",".join(HUNT_SERVICES),
+        "--robots",
+        ",".join(sorted({a.robot for a in app.agents})),
+    )
+    _secure(fleet, "add-operator", "runner")
+    _secure(fleet, "add-operator", "watcher")
+    member = {
+        n: str(fleet / "members" / f"{n}.json5")
+        for n in ("simhost", "robot1", "robot2", "hunthost", "runner", "watcher")
+    }
+    procs = []
+
+    def start(host, argv, env=None):
+        p = Proc(lan.cmd(host, argv), env=env)
+        procs.append(p)
+        return p
+
+    try:
+        router = start("router", rsal_cmd("router", "--config", str(fleet / "router.json5")))
+        wait_until(lambda: "routing on" in router.output(), 30, "the fleet's router to listen")
+        start("sim", rsal_cmd("sim", str(WORLD), "--no-map", "--speedup", SPEEDUP, "--config", member["simhost"]))
+        for host, robot in (("robot1", "r1"), ("robot2", "r2")):
+            start(host, rsal_cmd("serve", nav_config(tmp_path, robot), "--config", member[host]))
+        watch = Watch(
+            start(
+                "agents",
+                [
+                    sys.executable,
+                    str(ROOT / "tests" / "fabric" / "netwatch.py"),
+                    "--truth",
+                    "r0,r1,r2",
+                    "--config",
+                    member["watcher"],
+                ],
+            )
+        )
+        stack = {f"{r}:{d}" for r in ("r1", "r2") for d in ("planner:0", "localize:0", "position2d:1", "position2d:2")}
+        wait_until(lambda: stack <= watch.alive(), 120, "both robot hosts' navigation stacks through the router")
+        hunt = start(
+            "agents",
+            rsal_cmd(
+                "run",
+                str(SCENARIO),
+                "--app",
+                "fleet",
+                "--config",
+                member["runner"],
+                "--agents-config",
+                member["hunthost"],
+                "--progress",
+                "2",
+            ),
+            env={"RSAL_SIM_TIME": "sim"},
+        )
+        wait_until(lambda: not hunt.alive(), 300, "the secured hunt to end")
+        out = hunt.output()
+        assert hunt.p.returncode == 0, out[-3000:]
+        caught = re.search(r"prey r0 caught by (r[12]) after", out)
+        assert caught and "ignored an outcome" not in out, out[-2000:]
+        truth = [e["truth"] for e in watch.events() if "truth" in e and {"r0", caught[1]} <= set(e["truth"])]
+        assert truth and moved(truth[-1]["r0"], truth[-1][caught[1]]) < 2.5  # simulation's ground truth
     finally:
         for p in procs:
             p.close()

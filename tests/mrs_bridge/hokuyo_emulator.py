@@ -1,12 +1,21 @@
 """An emulated Hokuyo laser (URG-04LX or UTM-30LX) speaking SCIP 2.0 on a pseudo-terminal.
 
+Written from Hokuyo's "URG Series Communication Protocol Specification SCIP 2.0", independently of
+the driver: nothing here is imported from ``mrs_bridge``. This module's own tables and encoders:
+the line framing and check character (:func:`check_char`, :func:`line`), the 2/3/4-character
+coding (:func:`encode`), the sensors' ``PP`` values from their data sheets (:data:`SENSORS`), and
+the status codes it answers (:data:`STATUS`). :func:`answer` frames one reply block, :func:`scan_block`
+the body of a ``GD``/``MD`` scan.
+
 The driver under test opens :attr:`HokuyoEmulator.path` (the pty's slave side) as its serial port;
 the emulator answers on the master side from its own thread: ``SCIP2.0``, ``VV``, ``PP``, ``II``,
-``BM``, ``QT``, ``RS``, ``GD`` and ``MD`` (scans at the model's rate), unknown commands with status
-``0L``. The scene is a round room: every reading is ``room_mm`` except step ``amin + 10``, which
-answers the error code 1 (no echo). Faults on demand: ``mode = "silent"`` (reads and never
-answers), ``"garbage"`` (noise bytes between scans), ``"badsum"`` (every other scan with a wrong
-check character). ``commands`` records every command line received.
+``BM``, ``QT``, ``RS``, ``GD`` and ``MD`` (scans at the model's rate), anything else with the
+"undefined command" status ``0E``. ``MD`` honours its scan interval (scans skipped between two
+sent) and its number of scans (the echo's last two digits count down the scans left; ``00``:
+endless). The scene is a round room: every reading is ``room_mm`` except
+step ``amin + 10``, which answers the error code 1 (no echo). Faults on demand: ``mode =
+"silent"`` (reads and never answers), ``"garbage"`` (noise bytes between scans), ``"badsum"`` (every
+other scan with a wrong check character). ``commands`` records every command line received.
 """
 
 from __future__ import annotations
@@ -15,30 +24,98 @@ import os
 import select
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
-from mrs_bridge.drivers.hokuyo import MODELS, check_char, data_lines, encode_values
+LF = b"\n"
+DATA_PER_LINE = 64  # data characters per line before its check character
 
 
-def _line(text: bytes) -> bytes:
-    return text + bytes([check_char(text)]) + b"\n"
+@dataclass(frozen=True)
+class Sensor:
+    """A sensor's ``PP`` answer: ranges in mm, angles in steps, scan speed in rpm."""
+
+    model: str
+    dmin: int
+    dmax: int
+    ares: int
+    amin: int
+    amax: int
+    afrt: int
+    scan: int
 
 
-def _field(key: str, value: str) -> bytes:
-    body = f"{key}:{value}".encode()
-    return body + b";" + bytes([check_char(body)]) + b"\n"
+#: the sensors of the thesis (A.2), from their data sheets
+SENSORS = {
+    "URG-04LX": Sensor("URG-04LX", 20, 5600, 1024, 44, 725, 384, 600),
+    "UTM-30LX": Sensor("UTM-30LX", 23, 60000, 1440, 0, 1080, 540, 2400),
+}
+
+#: the status codes this emulator answers
+STATUS = {
+    "ok": b"00",
+    "scan": b"99",
+    "start_not_number": b"01",
+    "end_not_number": b"02",
+    "cluster_not_number": b"03",
+    "end_out_of_range": b"04",
+    "end_before_start": b"05",
+    "interval_not_number": b"06",
+    "count_not_number": b"07",
+    "laser_off": b"10",
+    "laser_already_on": b"02",  # BM
+    "undefined": b"0E",
+}
+
+
+def check_char(data: bytes) -> int:
+    """The check character: the sum of the bytes, its low 6 bits, plus 0x30."""
+    return (sum(data) & 0x3F) + 0x30
+
+
+def line(data: bytes) -> bytes:
+    """One answer line: data, its check character, LF."""
+    return data + bytes([check_char(data)]) + LF
+
+
+def field_line(key: str, value: str) -> bytes:
+    """A ``key:value;`` line of VV/PP/II: the check character sums the bytes before the ';'."""
+    body = f"{key}:{value}".encode("ascii")
+    return body + b";" + bytes([check_char(body)]) + LF
+
+
+def encode(values, chars: int) -> bytes:
+    """Each value as ``chars`` characters of 6 bits, most significant first, plus 0x30."""
+    v = np.asarray(values, dtype=np.int64).reshape(-1, 1)
+    shifts = 6 * np.arange(chars - 1, -1, -1)
+    return (((v >> shifts) & 0x3F) + 0x30).astype(np.uint8).tobytes()
+
+
+def answer(echo: bytes, status: bytes, body: bytes = b"") -> bytes:
+    """A reply block: the echo, the status line, the data lines, the empty line."""
+    return echo + LF + line(status) + body + LF
+
+
+def scan_block(stamp_ms: int, ranges_mm, chars: int = 3) -> bytes:
+    """The data lines of a scan: the 4-character time stamp line, then the ranges cut into lines
+    of 64 characters."""
+    data = encode(ranges_mm, chars)
+    lines = [data[i : i + DATA_PER_LINE] for i in range(0, len(data), DATA_PER_LINE)]
+    return line(encode([stamp_ms % (1 << 24)], 4)) + b"".join(line(ln) for ln in lines)
 
 
 class HokuyoEmulator:
     def __init__(self, model: str = "URG-04LX", room_mm: int = 2000):
-        self.pp = MODELS[model]
+        self.pp = SENSORS[model]
         self.room_mm = room_mm
         self.master, self.slave = os.openpty()
         self.path = os.ttyname(self.slave)
         self.mode = "normal"
         self.laser_on = False
         self.md: tuple[bytes, int, int, int] | None = None  # echo, start, end, cluster
+        self.md_left = 0  # scans still to send (0: endless)
+        self.md_skip = 0  # scans skipped between two sent (the interval digit)
         self.commands: list[bytes] = []
         self.scans_sent = 0
         self._stop = threading.Event()
@@ -52,7 +129,9 @@ class HokuyoEmulator:
         mm = np.full(steps.size, self.room_mm, dtype=np.int64)
         mm[steps == self.pp.amin + 10] = 1  # an error code: no echo
         n = (end - start) // cluster + 1
-        return mm[: n * cluster].reshape(n, cluster).min(axis=1) if cluster > 1 else mm
+        if cluster > 1:  # a cluster reports the minimum of its steps (the last may be short)
+            mm = np.minimum.reduceat(mm, np.arange(0, steps.size, cluster))[:n]
+        return mm
 
     # -- framing
     def _send(self, data: bytes) -> None:
@@ -61,25 +140,36 @@ class HokuyoEmulator:
         except OSError:
             pass
 
-    def _answer(self, echo: bytes, status: bytes, body: bytes = b"") -> None:
-        self._send(echo + b"\n" + _line(status) + body + b"\n")
-
     def _scan_body(self, start: int, end: int, cluster: int, *, bad: bool = False) -> bytes:
-        ts = int(time.monotonic() * 1000) % (1 << 24)
-        payload = encode_values(self.readings(start, end, cluster), 3)
-        lines = data_lines(payload)
-        if bad:
-            last = lines[0]
-            lines[0] = last[:-1] + bytes([0x30 + ((last[-1] - 0x30 + 1) & 0x3F)])
-        return _line(encode_values([ts], 4)) + b"".join(ln + b"\n" for ln in lines)
+        body = scan_block(int(time.monotonic() * 1000), self.readings(start, end, cluster))
+        if bad:  # spoil the first range line's check character
+            i = body.index(LF) + 1
+            j = body.index(LF, i) - 1
+            body = body[:j] + bytes([0x30 + ((body[j] - 0x30 + 1) & 0x3F)]) + body[j + 1 :]
+        return body
 
     # -- commands
+    def _scan_request(self, cmd: bytes, md: bool) -> tuple[bytes, tuple[int, int, int] | None]:
+        """The status for a GD/MD request and its (start, end, cluster) when valid."""
+        fields = [(cmd[2:6], "start_not_number"), (cmd[6:10], "end_not_number"), (cmd[10:12], "cluster_not_number")]
+        if md:
+            fields += [(cmd[12:13], "interval_not_number"), (cmd[13:15], "count_not_number")]
+        for text, err in fields:
+            if len(text) == 0 or not text.isdigit():
+                return STATUS[err], None
+        start, end, cluster = int(cmd[2:6]), int(cmd[6:10]), int(cmd[10:12]) or 1
+        if end > self.pp.amax or start > self.pp.amax:
+            return STATUS["end_out_of_range"], None
+        if end < start:
+            return STATUS["end_before_start"], None
+        return STATUS["ok"], (start, end, cluster)
+
     def _handle(self, cmd: bytes) -> None:
         self.commands.append(cmd)
         pp = self.pp
         op = cmd[:2]
         if cmd == b"SCIP2.0":
-            self._answer(cmd, b"00")
+            self._send(answer(cmd, STATUS["ok"]))
         elif op == b"VV":
             fields = [
                 ("VEND", "Emulated Sensors"),
@@ -88,7 +178,7 @@ class HokuyoEmulator:
                 ("PROT", "SCIP 2.0"),
                 ("SERI", "EMU0001"),
             ]
-            self._answer(cmd, b"00", b"".join(_field(k, v) for k, v in fields))
+            self._send(answer(cmd, STATUS["ok"], b"".join(field_line(k, v) for k, v in fields)))
         elif op == b"PP":
             fields = [
                 ("MODL", f"{pp.model}(Emulated)"),
@@ -98,39 +188,38 @@ class HokuyoEmulator:
                 ("AMIN", str(pp.amin)),
                 ("AMAX", str(pp.amax)),
                 ("AFRT", str(pp.afrt)),
-                ("SCAN", str(pp.scan_rpm)),
+                ("SCAN", str(pp.scan)),
             ]
-            self._answer(cmd, b"00", b"".join(_field(k, v) for k, v in fields))
+            self._send(answer(cmd, STATUS["ok"], b"".join(field_line(k, v) for k, v in fields)))
         elif op == b"II":
-            self._answer(cmd, b"00", _field("LASR", "ON" if self.laser_on else "OFF"))
+            self._send(answer(cmd, STATUS["ok"], field_line("LASR", "ON" if self.laser_on else "OFF")))
         elif op == b"BM":
-            self._answer(cmd, b"02" if self.laser_on else b"00")
+            self._send(answer(cmd, STATUS["laser_already_on"] if self.laser_on else STATUS["ok"]))
             self.laser_on = True
         elif op in (b"QT", b"RS"):
             self.laser_on = False
             self.md = None
-            self._answer(cmd, b"00")
-        elif op in (b"GD", b"MD") and len(cmd) >= 12 and cmd[2:12].isdigit():
-            start, end, cluster = int(cmd[2:6]), int(cmd[6:10]), int(cmd[10:12]) or 1
-            if not pp.amin <= start <= pp.amax:
-                self._answer(cmd, b"01")
-            elif not start <= end <= pp.amax:
-                self._answer(cmd, b"04" if end < start else b"02")
+            self._send(answer(cmd, STATUS["ok"]))
+        elif op in (b"GD", b"MD"):
+            status, req = self._scan_request(cmd, md=op == b"MD")
+            if req is None:
+                self._send(answer(cmd, status))
             elif op == b"GD":
                 if not self.laser_on:
-                    self._answer(cmd, b"10")
+                    self._send(answer(cmd, STATUS["laser_off"]))
                 else:
-                    self._answer(cmd, b"00", self._scan_body(start, end, cluster))
-            else:
+                    self._send(answer(cmd, STATUS["ok"], self._scan_body(*req)))
+            else:  # MD switches the laser on by itself
                 self.laser_on = True
-                self._answer(cmd, b"00")
-                self.md = (cmd, start, end, cluster)
+                self._send(answer(cmd, STATUS["ok"]))
+                self.md = (cmd, *req)
+                self.md_skip, self.md_left = int(cmd[12:13]), int(cmd[13:15])
         else:
-            self._answer(cmd, b"0L")
+            self._send(answer(cmd, STATUS["undefined"]))
 
     def _run(self) -> None:
         buf = b""
-        period = 60.0 / self.pp.scan_rpm
+        rev = 60.0 / self.pp.scan  # s per revolution
         next_scan = time.monotonic()
         while not self._stop.is_set():
             r, _, _ = select.select([self.master], [], [], 0.005)
@@ -139,7 +228,7 @@ class HokuyoEmulator:
                     buf += os.read(self.master, 4096)
                 except OSError:
                     buf = b""
-                *lines, buf = buf.split(b"\n")
+                *lines, buf = buf.split(LF)
                 with self._lock:
                     for ln in lines:
                         ln = ln.strip(b"\r")
@@ -151,14 +240,21 @@ class HokuyoEmulator:
             with self._lock:
                 if self.md is None or self.mode == "silent" or now < next_scan:
                     continue
+                period = rev * (1 + self.md_skip)
                 next_scan = max(next_scan + period, now - period)
                 echo, start, end, cluster = self.md
+                if self.md_left:  # a counted MD: the echo's last two digits count the scans left
+                    self.md_left -= 1
+                    echo = echo[:13] + b"%02d" % self.md_left
                 bad = self.mode == "badsum" and self.scans_sent % 2 == 1
                 if self.mode == "garbage":
                     self._send(bytes(np.random.default_rng(self.scans_sent).integers(0, 256, 40, dtype=np.uint8)))
-                    self._send(b"\n\n")
-                self._send(echo + b"\n" + _line(b"99") + self._scan_body(start, end, cluster, bad=bad) + b"\n")
+                    self._send(LF + LF)
+                # an endless MD (scan count 00) echoes its command unchanged with every scan
+                self._send(answer(echo, STATUS["scan"], self._scan_body(start, end, cluster, bad=bad)))
                 self.scans_sent += 1
+                if echo[13:15] == b"00" and self.md[0][13:15] != b"00":  # the last counted scan sent
+                    self.md = None
 
     def set_mode(self, mode: str) -> None:
         with self._lock:

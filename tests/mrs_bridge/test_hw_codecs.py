@@ -15,7 +15,8 @@ from mrs_bridge.hw import p2os, scip
 def sip_payload(x=100, y=200, th=300, lv=-5, rv=7, batt=125, sonars=((0, 40), (3, 900)), tail=True) -> bytes:
     head = struct.pack("<BHHhhhBHhHBB", p2os.SIP_MOVING, x, y, th, lv, rv, batt, 0x0101, 0, 1, 0, len(sonars))
     body = b"".join(struct.pack("<BH", n, r) for n, r in sonars)
-    return head + body + (struct.pack("<BBBBBHB", 0x15, 0, 3, 0x0F, 0x02, 131, 1) if tail else b"")
+    # TIMER (its high byte: the gripper state byte), ANALOG, DIGIN, DIGOUT, BATTERYX10, CHARGESTATE
+    return head + body + (struct.pack("<HBBBHB", 0x15 << 8, 3, 0x0F, 0x02, 131, 1) if tail else b"")
 
 
 def test_p2os_packet_round_trip_through_the_reader():

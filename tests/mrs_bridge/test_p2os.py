@@ -84,13 +84,13 @@ def sip_bytes(x=0, y=0, th=0, lv=0, rv=0, batt=121, sb=0, flags=1, sonars=(), ta
     b = struct.pack("<BHHhhhBHhHB", 0x33, x, y, th, lv, rv, batt, sb, 0, flags, 0)
     b += bytes([len(sonars)]) + b"".join(struct.pack("<BH", n, r) for n, r in sonars)
     if tail:
-        b += bytes([0b0101_0110, 0, 200, 0xA5, 0x03]) + struct.pack("<H", 124) + b"\x01"
+        b += bytes([0, 0b0101_0110, 200, 0xA5, 0x03]) + struct.pack("<H", 124) + b"\x01"  # TIMER high byte: gripper
     return b
 
 
 def test_sip_decoding_by_hand():
     raw = bytes.fromhex("333412010000089cff640079010100000100000200f40107e803")
-    s = decode_sip(raw + bytes([0b0101_0110, 0, 200, 0xA5, 0x03, 124, 0, 1]))
+    s = decode_sip(raw + bytes([0, 0b0101_0110, 200, 0xA5, 0x03, 124, 0, 1]))  # TIMER (gripper in its high byte)
     assert (s.moving, s.xpos, s.ypos, s.thpos, s.l_vel, s.r_vel) == (True, 0x1234, 1, 0x800, -100, 100)
     assert s.battery == 121 and s.stalled and s.motors_enabled
     assert s.sonars == ((0, 500), (7, 1000))
@@ -209,7 +209,8 @@ def test_connects_and_publishes_every_device(robot, served):
     assert power.volts == pytest.approx(12.3) and 0 < power.percent < 100
     grip = fab.device("r0:gripper:0").wait_for_data(10)
     assert (grip.paddles, grip.lift) == ("open", "down")
-    assert fab.device("r0:dio:0").wait_for_data(10)["bits"] == 0b1010_0101
+    # user inputs 0x81; the gripper's paddle contacts released (bits 4, 5 high), no beam broken
+    assert fab.device("r0:dio:0").wait_for_data(10)["bits"] == 0b1011_0001
     lift = fab.device("r0:actarray:0")
     assert lift.wait_for_data(10)["positions"] == [0.0]
     assert lift.rpc("set_position", joint=0, position=1.0) == {"ok": True, "position": 1.0}
