@@ -1,7 +1,7 @@
 """``rsal rosbag2 RUN.mcap -o DIR``: a fabric recording as a rosbag2 bag that ``ros2 bag play``,
 Foxglove and Rerun open (docs/ros2.md, "Bags").
 
-Reads an ``rsal record`` recording (:class:`rsal.record.player.Recording`, docs/recording.md)
+Reads an ``rsal record`` recording (:class:`rsal.record.Recording`, docs/recording.md)
 and writes a rosbag2 directory (``metadata.yaml`` + one MCAP file with CDR messages and their
 ``ros2msg`` schemas, written by rosbags' rosbag2 writer) with the messages the exporter would have
 published live (:mod:`mrs_bridge.ros2.export`): ``/<robot>/scan`` from each laser,
@@ -42,7 +42,7 @@ def convert(paths: list[str], out: str | Path, *, frame_prefix: str = "{robot}/"
     """Write the bag; returns the number of messages per ROS topic (and ``skipped``)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
-    from rsal.record.player import Recording
+    from rsal.record import Recording
 
     rec = Recording(*paths)
     out = Path(out)
