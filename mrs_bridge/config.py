@@ -127,7 +127,7 @@ def parse_config(
         dnode = b.get("node", node)
         provides = _devices(b.get("provides", []), dnode, where, "provides")
         requires = _devices(b.get("requires", []), dnode, where, "requires")
-        if not provides and name not in ("simulation",):
+        if not provides and name not in ("simulation", "ros2_export"):
             raise ConfigError(f"{where}: 'provides' is empty; list the devices it offers, e.g. [\"laser:0\"]")
         rate = b.get("rate")
         if rate is not None and (isinstance(rate, bool) or not isinstance(rate, (int, float)) or rate <= 0):
