@@ -1,6 +1,7 @@
 """The ``rsal`` command line.
 
 ``rsal`` itself knows the commands of the RSAL layer (``ls``, ``goto``, ``estop``, ``record``, ``play``,
+``map``, ``tour``,
 ``router``, ``secure``, ``watch``); the other layers add theirs through the ``rsal.commands``
 entry-point group (``serve`` and ``sim`` from ``mrs_bridge``, ``demo`` from ``agents``), so this package
 never imports the layers above or beside it. Each entry point is a function ``register(subparsers)``
@@ -257,6 +258,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .record import register as register_record
 
     register_record(sub)
+    from .mapping.cli import register as register_mapping
+
+    register_mapping(sub)
     from .router import register as register_router
 
     register_router(sub)

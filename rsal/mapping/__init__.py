@@ -1,0 +1,1 @@
+"""Maps: building them from recordings, the ROS map_server file format, and map tools."""
