@@ -1,8 +1,10 @@
 """A 2D pose graph and its optimisation (graph SLAM's back end).
 
-Nodes are keyframe poses (x, y, yaw); an edge ``(i, j, z, sigma)`` says node ``j`` seen from node
-``i`` is at ``z`` with standard deviations ``sigma`` (m, m, rad). The optimiser minimises the sum of
-squared whitened errors ``(inv(x_i) * x_j) - z`` (Lu and Milios, "Globally consistent range scan
+Nodes are keyframe poses (x, y, yaw); an edge ``(i, j, z, info)`` says node ``j`` seen from node
+``i`` is at ``z`` with the 3x3 information matrix ``info`` (the inverse covariance, in node
+``i``'s frame; a corridor's scan match knows little along the corridor, and says so here), or
+standard deviations ``sigma`` (m, m, rad). The optimiser minimises the sum of squared whitened
+errors ``S ((inv(x_i) * x_j) - z)``, ``S`` the Cholesky factor of ``info`` (Lu and Milios, "Globally consistent range scan
 alignment", 1997; Grisetti et al., "A tutorial on graph-based SLAM", 2010) with
 ``scipy.optimize.least_squares`` and an analytic sparse Jacobian (``scipy.sparse``), a
 ``soft_l1`` loss that limits what a wrong loop closure can do, and node 0 held by a strong prior.
@@ -47,18 +49,23 @@ class PoseGraph:
     edges_i: list = field(default_factory=list)
     edges_j: list = field(default_factory=list)
     edges_z: list = field(default_factory=list)
-    edges_w: list = field(default_factory=list)  # 1 / sigma
+    edges_w: list = field(default_factory=list)  # 3x3 square roots of the information
     loop: list = field(default_factory=list)  # whether the edge is a loop closure
 
     def add_node(self, pose) -> int:
         self.poses.append(np.asarray(pose, float))
         return len(self.poses) - 1
 
-    def add_edge(self, i: int, j: int, z, sigma, loop: bool = False) -> None:
+    def add_edge(self, i: int, j: int, z, sigma=None, loop: bool = False, info=None) -> None:
+        """An edge with standard deviations ``sigma`` (3,) or an information matrix ``info`` (3, 3)."""
         self.edges_i.append(i)
         self.edges_j.append(j)
         self.edges_z.append(np.asarray(z, float))
-        self.edges_w.append(1.0 / np.asarray(sigma, float))
+        if info is not None:
+            info = 0.5 * (np.asarray(info, float) + np.asarray(info, float).T)
+            self.edges_w.append(np.linalg.cholesky(info).T)  # S with S^T S = info
+        else:
+            self.edges_w.append(np.diag(1.0 / np.asarray(sigma, float)))
         self.loop.append(loop)
 
     def _residual(self, x, I, J, Z, W, x0):
@@ -67,7 +74,7 @@ class PoseGraph:
         e[:, 2] = _wrap(e[:, 2])
         prior = (p[0] - x0) * 1e4
         prior[2] = _wrap(p[0, 2] - x0[2]) * 1e4
-        return np.concatenate([(e * W).ravel(), prior])
+        return np.concatenate([np.einsum("mab,mb->ma", W, e).ravel(), prior])
 
     def _jacobian(self, x, I, J, Z, W, x0):
         p = x.reshape(-1, 3)
@@ -75,19 +82,16 @@ class PoseGraph:
         c, s = np.cos(pi[:, 2]), np.sin(pi[:, 2])
         dx, dy = pj[:, 0] - pi[:, 0], pj[:, 1] - pi[:, 1]
         m = len(I)
-        rows, cols, vals = [], [], []
-
-        def put(r, node, col, v):
-            rows.append(3 * np.arange(m) + r)
-            cols.append(3 * node + col)
-            vals.append(v)
-
-        # e0 = c dx + s dy ; e1 = -s dx + c dy ; e2 = yj - yi
-        put(0, I, 0, -c * W[:, 0]); put(0, I, 1, -s * W[:, 0]); put(0, I, 2, (-s * dx + c * dy) * W[:, 0])
-        put(0, J, 0, c * W[:, 0]); put(0, J, 1, s * W[:, 0])
-        put(1, I, 0, s * W[:, 1]); put(1, I, 1, -c * W[:, 1]); put(1, I, 2, (-c * dx - s * dy) * W[:, 1])
-        put(1, J, 0, -s * W[:, 1]); put(1, J, 1, c * W[:, 1])
-        put(2, I, 2, -np.ones(m) * W[:, 2]); put(2, J, 2, np.ones(m) * W[:, 2])
+        z, o = np.zeros(m), np.ones(m)
+        Ei = np.stack([np.stack([-c, -s, -s * dx + c * dy], 1), np.stack([s, -c, -c * dx - s * dy], 1),
+                       np.stack([z, z, -o], 1)], 1)  # (m, 3 residuals, 3 vars) of node i
+        Ej = np.stack([np.stack([c, s, z], 1), np.stack([-s, c, z], 1), np.stack([z, z, o], 1)], 1)
+        Ri, Rj = np.einsum("mab,mbc->mac", W, Ei), np.einsum("mab,mbc->mac", W, Ej)
+        ra = 3 * np.arange(m)[:, None, None] + np.arange(3)[None, :, None]
+        rows = [np.broadcast_to(ra, (m, 3, 3)).ravel()] * 2
+        cols = [(3 * I[:, None, None] + np.arange(3)[None, None, :] + 0 * ra).ravel(),
+                (3 * J[:, None, None] + np.arange(3)[None, None, :] + 0 * ra).ravel()]
+        vals = [Ri.ravel(), Rj.ravel()]
         rows.append(3 * m + np.arange(3))
         cols.append(np.arange(3))
         vals.append(np.full(3, 1e4))
@@ -117,4 +121,4 @@ class PoseGraph:
         I, J = np.asarray(self.edges_i), np.asarray(self.edges_j)
         e = between(p[I], p[J]) - np.asarray(self.edges_z)
         e[:, 2] = _wrap(e[:, 2])
-        return ((e * np.asarray(self.edges_w)) ** 2).sum(axis=1)
+        return (np.einsum("mab,mb->ma", np.asarray(self.edges_w), e) ** 2).sum(axis=1)

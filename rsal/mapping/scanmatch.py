@@ -41,9 +41,10 @@ def scan_points(ranges: np.ndarray, angles: np.ndarray, mount, range_min: float,
     return pts, np.nonzero(ok)[0]
 
 
-def normals(pts: np.ndarray, beams: np.ndarray, max_gap: float = 0.15) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals of the surface at each point from its neighbours along the scan, and whether
-    a point has both neighbours close (on a surface, not an edge or a lone return)."""
+def normals(pts: np.ndarray, beams: np.ndarray, origin=(0.0, 0.0), max_gap: float = 0.15):
+    """Unit normals of the surface at each point from its neighbours along the scan, turned
+    towards the sensor at ``origin`` (so the two faces of a thin wall have opposite normals), and
+    whether a point has both neighbours close (on a surface, not an edge or a lone return)."""
     n = len(pts)
     if n < 3:
         return np.zeros((n, 2)), np.zeros(n, bool)
@@ -58,6 +59,8 @@ def normals(pts: np.ndarray, beams: np.ndarray, max_gap: float = 0.15) -> tuple[
     ln = np.linalg.norm(nrm, axis=1)
     ok &= ln > 1e-9
     nrm[ok] /= ln[ok, None]
+    flip = np.einsum("ij,ij->i", nrm, np.asarray(origin, float)[None, :2] - pts) < 0
+    nrm[flip] *= -1
     return nrm, ok
 
 
@@ -76,25 +79,51 @@ class MatchResult:
     inliers: float  # fraction of the scan's points within ``inlier`` of the reference surface
     rms: float  # m, of the inliers' point-to-line distances
     n: int
+    #: how well the inliers pin the translation down: the smaller eigenvalue of the mean of their
+    #: normals' outer products (0: a corridor, free along its axis; 0.5: walls every way)
+    constraint: float = 0.0
+    #: the scan's information about the pose (3x3, world frame, x y yaw): J^T J / sigma^2 of the
+    #: inliers' point-to-line distances, divided by ``SAMPLES_PER_INDEPENDENT`` (neighbouring
+    #: points' errors are not independent)
+    info: np.ndarray | None = None
 
 
-def icp(ref: Reference, pts: np.ndarray, guess, *, iters: int = 25, max_dist: float = 0.5,
-        prior: tuple[float, float] = (0.05, 0.05), inlier: float = 0.05) -> MatchResult:
-    """Point-to-line ICP of ``pts`` (robot frame) against ``ref``, from ``guess``; ``prior`` is the
-    standard deviation (m, rad) of the guess (a weak pull that only matters where the scan does not
-    constrain the pose)."""
+def _associate(ref: Reference, w: np.ndarray, wn: np.ndarray | None, gate: float):
+    """Each point's nearest reference point within ``gate`` whose normal faces the same way
+    (one of the 4 nearest); returns the mask of associated points and their reference indices."""
+    d, j = ref.tree.query(w, k=4, distance_upper_bound=gate)
+    ok = np.isfinite(d)
+    if wn is not None:
+        jj = np.where(ok, j, 0)
+        ok &= np.einsum("nkc,nc->nk", ref.nrm[jj], wn) > 0.5
+    first = np.argmax(ok, axis=1)
+    rows = np.arange(len(w))
+    m = ok[rows, first]
+    return m, j[rows, first][m], d[rows, first][m]
+
+
+SIGMA = 0.02  # m: the expected point-to-line noise
+SAMPLES_PER_INDEPENDENT = 10.0
+
+
+def icp(ref: Reference, pts: np.ndarray, guess, *, nrm: np.ndarray | None = None, iters: int = 25,
+        max_dist: float = 0.5, prior: tuple[float, float] = (0.05, 0.05), inlier: float = 0.05,
+        center=None) -> MatchResult:
+    """Point-to-line ICP of ``pts`` (robot frame; ``nrm`` their normals towards the sensor, which
+    keeps points from pairing with the far face of a thin wall) against ``ref``, from ``guess``;
+    ``prior`` is the standard deviation (m, rad) of the guess (a weak pull that only matters where
+    the scan does not constrain the pose), centred on ``center`` (default: the guess)."""
     x = np.asarray(guess, dtype=float).copy()
-    g = x.copy()
+    g = x.copy() if center is None else np.asarray(center, dtype=float)
     lam = np.diag([1 / prior[0] ** 2, 1 / prior[0] ** 2, 1 / prior[1] ** 2])
-    sigma = 0.02  # m: the expected point-to-line noise (scales the data term against the prior)
+    sigma = SIGMA
     gate = max_dist
     for it in range(iters):
         w = transform(x, pts)
-        d, j = ref.tree.query(w, distance_upper_bound=gate)
-        m = np.isfinite(d)
+        m, jm, _ = _associate(ref, w, None if nrm is None else rotate(x[2], nrm), gate)
         if m.sum() < 10:
             break
-        q, nq = ref.pts[j[m]], ref.nrm[j[m]]
+        q, nq = ref.pts[jm], ref.nrm[jm]
         p = w[m]
         r = np.einsum("ij,ij->i", nq, p - q)
         # d(p)/d(yaw) = (-(py - y), px - x)
@@ -111,17 +140,22 @@ def icp(ref: Reference, pts: np.ndarray, guess, *, iters: int = 25, max_dist: fl
         if abs(dx[0]) < 1e-4 and abs(dx[1]) < 1e-4 and abs(dx[2]) < 1e-4:
             break
     w = transform(x, pts)
-    d, j = ref.tree.query(w, distance_upper_bound=0.3)
-    m = np.isfinite(d)
+    m, jm, dm = _associate(ref, w, None if nrm is None else rotate(x[2], nrm), 0.3)
     if m.any():
-        r = np.abs(np.einsum("ij,ij->i", ref.nrm[j[m]], w[m] - ref.pts[j[m]]))
-        r = np.minimum(r, d[m])
+        r = np.abs(np.einsum("ij,ij->i", ref.nrm[jm], w[m] - ref.pts[jm]))
+        r = np.minimum(r, dm)
         good = r < inlier
         frac = float(good.sum()) / len(pts)
         rms = float(np.sqrt(np.mean(r[good] ** 2))) if good.any() else np.inf
+        ng = ref.nrm[jm][good]
+        con = float(np.linalg.eigvalsh(ng.T @ ng / len(ng))[0]) if len(ng) else 0.0
+        pg = w[m][good]
+        dp = np.column_stack([-(pg[:, 1] - x[1]), pg[:, 0] - x[0]])
+        J = np.column_stack([ng, np.einsum("ij,ij->i", ng, dp)])
+        info = J.T @ J / (SIGMA**2 * SAMPLES_PER_INDEPENDENT)
     else:
-        frac, rms = 0.0, np.inf
-    return MatchResult(x, frac, rms, len(pts))
+        frac, rms, con, info = 0.0, np.inf, 0.0, np.zeros((3, 3))
+    return MatchResult(x, frac, rms, len(pts), con, info)
 
 
 def _diff(a, b) -> np.ndarray:
@@ -135,9 +169,12 @@ def _wrap(a):
 
 
 def correlative(ref_pts: np.ndarray, pts: np.ndarray, guess, *, win_xy: float = 0.5, win_yaw: float = 0.2,
-                res: float = 0.05, yaw_step: float = 0.01, sigma: float = 0.05) -> tuple[np.ndarray, float]:
+                res: float = 0.05, yaw_step: float = 0.01, sigma: float = 0.05,
+                prior: float = 0.3) -> tuple[np.ndarray, float]:
     """The pose in a window around ``guess`` whose points best fit a likelihood field of
-    ``ref_pts`` (world frame); returns the pose and its mean likelihood (0..1)."""
+    ``ref_pts`` (world frame), each score weighted by a Gaussian of the offset (``prior`` m) so
+    that where the fit is flat (a corridor) the guess wins; returns the pose and its mean
+    likelihood (0..1)."""
     guess = np.asarray(guess, dtype=float)
     lo = ref_pts.min(axis=0) - win_xy - 1.0
     hi = ref_pts.max(axis=0) + win_xy + 1.0
@@ -150,13 +187,14 @@ def correlative(ref_pts: np.ndarray, pts: np.ndarray, guess, *, win_xy: float = 
     nt = int(round(win_xy / res))
     offs = np.arange(-nt, nt + 1)
     best, best_pose = -1.0, guess
+    pen = np.exp(-0.5 * (offs[:, None] ** 2 + offs[None, :] ** 2) * (res / prior) ** 2)
     for dyaw in np.arange(-win_yaw, win_yaw + 1e-9, yaw_step):
         w = transform((guess[0], guess[1], guess[2] + dyaw), pts)
         c = np.floor((w - lo) / res).astype(int)
         cx = c[:, 0, None, None] + offs[None, :, None]
         cy = c[:, 1, None, None] + offs[None, None, :]
         inside = (cx >= 0) & (cx < shape[0]) & (cy >= 0) & (cy < shape[1])
-        sc = np.where(inside, field[np.clip(cy, 0, shape[1] - 1), np.clip(cx, 0, shape[0] - 1)], 0.0).mean(axis=0)
+        sc = np.where(inside, field[np.clip(cy, 0, shape[1] - 1), np.clip(cx, 0, shape[0] - 1)], 0.0).mean(axis=0) * pen
         k = int(np.argmax(sc))
         if sc.flat[k] > best:
             ix, iy = np.unravel_index(k, sc.shape)

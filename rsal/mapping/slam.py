@@ -43,12 +43,18 @@ class SlamParams:
     submap: int = 12  # keyframes in the local map
     loop_radius: float = 2.5  # m
     loop_gap: int = 25  # keyframes back
+    loop_travel: float = 10.0  # m driven since the candidate, at least
+    loop_constraint: float = 0.08  # the match must pin the translation down every way (scanmatch)
     loop_window: float = 0.4  # m, +- of the correlative search
     loop_yaw: float = 0.12  # rad, +-
     loop_inliers: float = 0.6  # fraction of the scan's points within 5 cm after ICP
     loop_every: int = 3  # try a loop closure at most every this many keyframes
-    seq_sigma: tuple = (0.02, 0.02, 0.01)
-    loop_sigma: tuple = (0.03, 0.03, 0.015)
+    icp_prior: tuple = (0.05, 0.05)  # m, rad: how far the odometry's prediction may be off
+    icp_gate: float = 0.2  # m: the farthest first association of a point
+    floor_sigma: tuple = (0.01, 0.01, 0.005)  # m, m, rad: no match is trusted more than this
+    odom_frac: float = 0.05  # the odometry's error, as a fraction of the motion (m/m, rad/rad)
+    loop_floor_sigma: tuple = (0.03, 0.03, 0.015)
+    loop_prior: tuple = (0.1, 0.05)  # m, rad: how far the estimate may be off where a loop is tried
 
 
 @dataclass
@@ -61,6 +67,7 @@ class SlamResult:
     cost: tuple = (0.0, 0.0)  # pose graph cost before / after the final optimisation
     residual: float = 0.0  # m: RMS translation error of the graph's edges at the end
     wall: float = 0.0
+    graph: PoseGraph | None = None
 
 
 def run_slam(sc: Scans, initial_pose=(0.0, 0.0, 0.0), params: SlamParams | None = None,
@@ -102,12 +109,14 @@ def run_slam(sc: Scans, initial_pose=(0.0, 0.0, 0.0), params: SlamParams | None 
         else:
             guess = odom_map[i]
         pts, beams = scan_points(sc.ranges[i], sc.angles, sc.mount, sc.range_min, sc.range_max)
-        nrm, ok = normals(pts, beams)
-        if len(pts) < 20:
+        nrm, ok = normals(pts, beams, sc.mount)
+        if ok.sum() < 20:
             continue
+        info = None
         if ref is not None:
-            m = icp(ref, pts[::2], guess)
+            m = icp(ref, pts[ok][::2], guess, nrm=nrm[ok][::2], prior=p.icp_prior, max_dist=p.icp_gate)
             pose = m.pose if m.inliers > 0.3 else guess
+            info = m.info if m.inliers > 0.3 else None
         else:
             pose = np.asarray(guess, float)
         u = len(used)
@@ -122,7 +131,8 @@ def run_slam(sc: Scans, initial_pose=(0.0, 0.0, 0.0), params: SlamParams | None 
         if new_kf:
             k = graph.add_node(pose)
             if k > 0:
-                graph.add_edge(k - 1, k, between(graph.poses[k - 1], pose), p.seq_sigma)
+                z = between(graph.poses[k - 1], pose)
+                graph.add_edge(k - 1, k, z, info=_edge_info(info, graph.poses[k - 1][2], p.floor_sigma, z, p))
             kf_scan.append(u)
             kf_of.append(k)
             rel.append(np.zeros(3))
@@ -156,7 +166,30 @@ def run_slam(sc: Scans, initial_pose=(0.0, 0.0, 0.0), params: SlamParams | None 
     if progress is not None:
         progress(n, n, len(kf_scan), len(loops))
     return SlamResult(final, np.asarray(used), np.asarray(kf_scan), loops, tries, cost, residual,
-                      time.perf_counter() - t_start)
+                      time.perf_counter() - t_start, graph)
+
+
+def _edge_info(info_world, yaw_i: float, floor, z, p: SlamParams, odom: bool = True) -> np.ndarray:
+    """A match's information (world frame) as an edge's, in the frame of the node at ``yaw_i``:
+    its covariance plus a floor, and (sequential edges) the odometry's information added."""
+    A = np.eye(3)
+    c, s = np.cos(yaw_i), np.sin(yaw_i)
+    A[:2, :2] = [[c, s], [-s, c]]
+    cov = np.diag(np.square(floor))
+    if info_world is not None:
+        try:
+            cov = cov + A @ np.linalg.pinv(info_world + np.eye(3) * 1e-6, hermitian=True) @ A.T
+        except np.linalg.LinAlgError:
+            cov = cov + np.eye(3) * 1e3
+    else:
+        cov = cov + np.eye(3) * 1e3
+    out = np.linalg.inv(cov)
+    if odom:
+        d = float(np.hypot(z[0], z[1]))
+        so = p.odom_frac * d + 0.005
+        sy = p.odom_frac * abs(float(z[2])) + 0.01 * d + 0.002
+        out = out + np.diag([1 / so**2, 1 / so**2, 1 / sy**2])
+    return out
 
 
 def _rot(yaw, v):
@@ -168,10 +201,12 @@ def _try_loop(graph: PoseGraph, kf_scan, local_pts, local_nrm, k: int, p: SlamPa
     """Look for a loop closure of keyframe ``k``: None if there was no candidate, False if the
     candidate did not match, else ``(j, k)`` with the edge added to the graph."""
     P = np.asarray(graph.poses)
+    travel = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(P[:, :2], axis=0).T))])
     old = P[: k - p.loop_gap + 1]
     if len(old) == 0:
         return None
     d = np.hypot(old[:, 0] - P[k, 0], old[:, 1] - P[k, 1])
+    d[travel[k] - travel[: len(old)] < p.loop_travel] = np.inf
     j = int(np.argmin(d))
     if d[j] > p.loop_radius:
         return None
@@ -183,8 +218,10 @@ def _try_loop(graph: PoseGraph, kf_scan, local_pts, local_nrm, k: int, p: SlamPa
         return False
     sub = scan[:: max(1, len(scan) // 150)]
     coarse, score = correlative(ref_pts, sub, P[k], win_xy=p.loop_window, win_yaw=p.loop_yaw)
-    m = icp(Reference(ref_pts, ref_nrm), scan, coarse, prior=(1.0, 1.0))
-    if m.inliers < p.loop_inliers or np.hypot(*(m.pose[:2] - coarse[:2])) > 0.15:
+    m = icp(Reference(ref_pts, ref_nrm), scan, coarse, nrm=local_nrm[kf_scan[k]], prior=p.loop_prior, center=P[k])
+    if (m.inliers < p.loop_inliers or m.constraint < p.loop_constraint
+            or np.hypot(*(m.pose[:2] - coarse[:2])) > 0.15):
         return False
-    graph.add_edge(j, k, between(P[j], m.pose), p.loop_sigma, loop=True)
+    z = between(P[j], m.pose)
+    graph.add_edge(j, k, z, loop=True, info=_edge_info(m.info, P[j][2], p.loop_floor_sigma, z, p, odom=False))
     return (j, k)
