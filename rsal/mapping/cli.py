@@ -82,7 +82,8 @@ def build_map(path: str, output: str, *, robot: str | None = None, resolution: f
         line = f"rsal map: [{'#' * f}{'.' * (w - f)}] {i}/{n} scans, {kf} keyframes, {loops} loop closures"
         print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
 
-    res = run_slam(sc, initial_pose if initial_pose is not None else (0.0, 0.0, 0.0), progress=progress)
+    res = run_slam(sc, initial_pose if initial_pose is not None else (0.0, 0.0, 0.0), progress=progress,
+                   progress_every=0.5 if tty else 5.0)
     if tty:
         print(file=sys.stderr)
     sensor = compose(res.poses, np.broadcast_to(sc.mount, res.poses.shape))

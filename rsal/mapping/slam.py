@@ -71,7 +71,9 @@ class SlamResult:
 
 
 def run_slam(sc: Scans, initial_pose=(0.0, 0.0, 0.0), params: SlamParams | None = None,
-             progress=None) -> SlamResult:
+             progress=None, progress_every: float = 0.5) -> SlamResult:
+    """Run the front and back end over the scans; ``initial_pose`` is the robot's pose at the first
+    scan in the map frame; ``progress(i, n, keyframes, loops)`` every ``progress_every`` s."""
     p = params or SlamParams()
     t_start = time.perf_counter()
     n = len(sc.t)
@@ -88,7 +90,7 @@ def run_slam(sc: Scans, initial_pose=(0.0, 0.0, 0.0), params: SlamParams | None 
     loops, tries = [], 0
     ref: Reference | None = None
     last_loop_try = -10**9
-    next_report = time.monotonic() + 0.5
+    next_report = time.monotonic() + progress_every
 
     def kf_world(k: int):
         u = kf_scan[k]
@@ -151,7 +153,7 @@ def run_slam(sc: Scans, initial_pose=(0.0, 0.0, 0.0), params: SlamParams | None 
             kf_of.append(len(kf_scan) - 1)
             rel.append(between(graph.poses[-1], pose))
         if progress is not None and time.monotonic() >= next_report:
-            next_report = time.monotonic() + 0.5
+            next_report = time.monotonic() + progress_every
             progress(i + 1, n, len(kf_scan), len(loops))
     cost = graph.optimize(max_nfev=100)
     final = np.array([compose(graph.poses[kf_of[v]], rel[v]) for v in range(len(used))])

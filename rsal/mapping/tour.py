@@ -42,6 +42,7 @@ WAYPOINT_CLEARANCE = 0.6  # m
 V_MAX = 0.4  # m/s
 W_MAX = 0.8  # rad/s
 LOOKAHEAD = 0.5  # m
+STILL = 0.5  # s standing at the start before driving off
 
 
 class TourError(RsalError, ValueError):
@@ -277,6 +278,8 @@ def run_tour(world_path: str, out: str, *, robot: str | None = None, minutes: fl
             if j == len(path) - 1 and math.hypot(tx - x, ty - y) < 0.15:  # a loop done: again
                 st.loops += 1
                 idx = 0
+            if world.time < STILL:  # the first scans at the start pose (where --initial-pose puts them)
+                v = om = 0.0
             world.set_velocity(robot, v, om)
             world.step()
             t = world.time
