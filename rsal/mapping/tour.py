@@ -265,7 +265,7 @@ def run_tour(world_path: str, out: str, *, robot: str | None = None, minutes: fl
         while world.time < end_t:
             x, y, a = world.get_pose(robot)
             # pure pursuit: the first path point at least LOOKAHEAD ahead of the nearest one
-            near = idx + int(np.argmin(np.linalg.norm(path[idx : idx + 40] - (x, y), axis=1)))
+            near = idx + int(np.argmin(np.linalg.norm(path[idx : idx + 10] - (x, y), axis=1)))
             idx = near
             j = idx
             while j + 1 < len(path) and math.hypot(path[j, 0] - x, path[j, 1] - y) < LOOKAHEAD:
@@ -275,7 +275,7 @@ def run_tour(world_path: str, out: str, *, robot: str | None = None, minutes: fl
             err = math.atan2(math.sin(err), math.cos(err))
             v = V_MAX * max(0.0, math.cos(err)) ** 4
             om = max(-W_MAX, min(W_MAX, 1.5 * err))
-            if j == len(path) - 1 and math.hypot(tx - x, ty - y) < 0.15:  # a loop done: again
+            if idx > len(path) // 2 and j == len(path) - 1 and math.hypot(tx - x, ty - y) < 0.15:  # again
                 st.loops += 1
                 idx = 0
             if world.time < STILL:  # the first scans at the start pose (where --initial-pose puts them)
