@@ -56,8 +56,10 @@ def main() -> int:
         rec = Path(tmp) / "tour.mcap"
         t0 = time.perf_counter()
         st = run_tour(a.world, str(rec), minutes=a.minutes, seed=a.seed)
-        print(f"bench=map what=tour world={Path(a.world).name} sim_s={st.sim_seconds:.0f} scans={st.scans} "
-              f"distance_m={st.distance:.1f} loops_driven={st.loops} wall_s={time.perf_counter() - t0:.1f}")
+        print(
+            f"bench=map what=tour world={Path(a.world).name} sim_s={st.sim_seconds:.0f} scans={st.scans} "
+            f"distance_m={st.distance:.1f} loops_driven={st.loops} wall_s={time.perf_counter() - t0:.1f}"
+        )
         sc = read_scans(rec)
         start = tuple(float(v) for v in sc.truth[0])  # the robot stands at its world-file pose at first
         # what `rsal map RUN -o NAME --initial-pose X Y YAW` runs, timed end to end (read, SLAM, grid, files)
@@ -75,16 +77,20 @@ def main() -> int:
         o_rms, o_max = trajectory_error(odo, truth)
         m = read_map(Path(tmp) / "built.yaml")
         g = world.grid
-        precision, coverage = wall_agreement(m.occupancy[::-1], m.resolution, m.origin, g.occupied,
-                                             g.resolution, g.origin)
-    print(f"bench=map what=slam scans_used={len(res.used)} keyframes={len(res.keyframes)} "
-          f"loop_closures={len(res.loops)} loop_tries={res.loop_tries}")
+        precision, coverage = wall_agreement(
+            m.occupancy[::-1], m.resolution, m.origin, g.occupied, g.resolution, g.origin
+        )
+    print(
+        f"bench=map what=slam scans_used={len(res.used)} keyframes={len(res.keyframes)} "
+        f"loop_closures={len(res.loops)} loop_tries={res.loop_tries}"
+    )
     print(f"bench=map what=trajectory rms_m={rms:.4f} max_m={worst:.4f} odom_rms_m={o_rms:.3f} odom_max_m={o_max:.3f}")
     print(f"bench=map what=walls occupied_near_true_wall={precision:.4f} true_walls_covered={coverage:.4f}")
     print(f"bench=map what=time map_wall_s={wall:.1f} tour_minutes={a.minutes:g}")
     ok = rms <= 0.05 and worst <= 0.15 and precision >= 0.95 and coverage >= 0.90 and wall < 60.0
-    print(f"bench=map verdict={'pass' if ok else 'fail'} targets='rms<=0.05 max<=0.15 near>=0.95 "
-          f"covered>=0.90 wall<60s'")
+    print(
+        f"bench=map verdict={'pass' if ok else 'fail'} targets='rms<=0.05 max<=0.15 near>=0.95 covered>=0.90 wall<60s'"
+    )
     return 0 if ok else 1
 
 

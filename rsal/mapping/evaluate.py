@@ -37,8 +37,17 @@ def _sample(field: np.ndarray, res: float, origin, x: np.ndarray, y: np.ndarray,
     return out
 
 
-def wall_agreement(built: np.ndarray, built_res: float, built_origin, true_occ: np.ndarray, true_res: float,
-                   true_origin, tol: float = 0.10, occupied: float = 0.65, free: float = 0.196):
+def wall_agreement(
+    built: np.ndarray,
+    built_res: float,
+    built_origin,
+    true_occ: np.ndarray,
+    true_res: float,
+    true_origin,
+    tol: float = 0.10,
+    occupied: float = 0.65,
+    free: float = 0.196,
+):
     """``(precision, coverage)`` of a built map against the truth. ``built``: occupancy with row 0
     at the *bottom* (-1 unknown, else 0..1); ``true_occ``: boolean, row 0 at the bottom; origins are
     the lower-left corners (m)."""

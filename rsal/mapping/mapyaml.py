@@ -36,9 +36,15 @@ class MapImage:
     yaml: Path
 
 
-def write_map(stem: str | os.PathLike[str], occupancy: np.ndarray, resolution: float, origin: tuple[float, ...],
-              *, occupied_thresh: float = DEFAULT_OCCUPIED_THRESH,
-              free_thresh: float = DEFAULT_FREE_THRESH) -> tuple[Path, Path]:
+def write_map(
+    stem: str | os.PathLike[str],
+    occupancy: np.ndarray,
+    resolution: float,
+    origin: tuple[float, ...],
+    *,
+    occupied_thresh: float = DEFAULT_OCCUPIED_THRESH,
+    free_thresh: float = DEFAULT_FREE_THRESH,
+) -> tuple[Path, Path]:
     """Write ``STEM.png`` and ``STEM.yaml``; returns their paths."""
     from PIL import Image
 

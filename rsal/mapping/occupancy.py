@@ -51,8 +51,15 @@ def _cast(logodds, hits, sx, sy, ex, ey, ret, l_occ, l_free, lmin, lmax):  # pra
             hits[y1, x1] = True
 
 
-def occupancy_grid(sensor_poses: np.ndarray, ranges: np.ndarray, angles: np.ndarray, range_min: float,
-                   range_max: float, resolution: float, margin: float = 1.0):
+def occupancy_grid(
+    sensor_poses: np.ndarray,
+    ranges: np.ndarray,
+    angles: np.ndarray,
+    range_min: float,
+    range_max: float,
+    resolution: float,
+    margin: float = 1.0,
+):
     """Build the grid from scans taken at ``sensor_poses`` (S, 3, the laser's pose in the map).
     Returns ``(occupancy, origin)``: occupancy (H, W) with row 0 at the *bottom* (y up), values
     0..1 (occupied probability) or -1 (unknown); origin (x, y) of cell (0, 0)'s lower-left corner."""
@@ -76,8 +83,19 @@ def occupancy_grid(sensor_poses: np.ndarray, ranges: np.ndarray, angles: np.ndar
     sy = np.repeat(np.floor((sensor_poses[:, 1] - y0) / resolution).astype(np.int64), r.shape[1])[m]
     cx = np.floor((ex.ravel()[m] - x0) / resolution).astype(np.int64)
     cy = np.floor((ey.ravel()[m] - y0) / resolution).astype(np.int64)
-    _cast(logodds, seen, sx, sy, cx, cy, ret.ravel()[m], np.float32(L_OCC), np.float32(L_FREE),
-          np.float32(L_MIN), np.float32(L_MAX))
+    _cast(
+        logodds,
+        seen,
+        sx,
+        sy,
+        cx,
+        cy,
+        ret.ravel()[m],
+        np.float32(L_OCC),
+        np.float32(L_FREE),
+        np.float32(L_MIN),
+        np.float32(L_MAX),
+    )
     occ = 1.0 - 1.0 / (1.0 + np.exp(logodds.astype(float)))
     occ[~seen] = -1.0
     return occ, (float(x0), float(y0))

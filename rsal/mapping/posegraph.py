@@ -4,8 +4,8 @@ Nodes are keyframe poses (x, y, yaw); an edge ``(i, j, z, info)`` says node ``j`
 ``i`` is at ``z`` with the 3x3 information matrix ``info`` (the inverse covariance, in node
 ``i``'s frame; a corridor's scan match knows little along the corridor, and says so here), or
 standard deviations ``sigma`` (m, m, rad). The optimiser minimises the sum of squared whitened
-errors ``S ((inv(x_i) * x_j) - z)``, ``S`` the Cholesky factor of ``info`` (Lu and Milios, "Globally consistent range scan
-alignment", 1997; Grisetti et al., "A tutorial on graph-based SLAM", 2010) with
+errors ``S ((inv(x_i) * x_j) - z)``, ``S`` the Cholesky factor of ``info`` (Lu and Milios,
+"Globally consistent range scan alignment", 1997; Grisetti et al., "A tutorial on graph-based SLAM", 2010) with
 ``scipy.optimize.least_squares`` and an analytic sparse Jacobian (``scipy.sparse``), a
 ``soft_l1`` loss that limits what a wrong loop closure can do, and node 0 held by a strong prior.
 scipy is already a dependency and solves a few thousand poses in well under a second; g2o or
@@ -31,8 +31,14 @@ def compose(a, b) -> np.ndarray:
     """``a * b`` for poses (..., 3)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1], a[..., 1] + s * b[..., 0] + c * b[..., 1],
-                     _wrap(a[..., 2] + b[..., 2])], axis=-1)
+    return np.stack(
+        [
+            a[..., 0] + c * b[..., 0] - s * b[..., 1],
+            a[..., 1] + s * b[..., 0] + c * b[..., 1],
+            _wrap(a[..., 2] + b[..., 2]),
+        ],
+        axis=-1,
+    )
 
 
 def between(a, b) -> np.ndarray:
@@ -83,20 +89,25 @@ class PoseGraph:
         dx, dy = pj[:, 0] - pi[:, 0], pj[:, 1] - pi[:, 1]
         m = len(I)
         z, o = np.zeros(m), np.ones(m)
-        Ei = np.stack([np.stack([-c, -s, -s * dx + c * dy], 1), np.stack([s, -c, -c * dx - s * dy], 1),
-                       np.stack([z, z, -o], 1)], 1)  # (m, 3 residuals, 3 vars) of node i
+        Ei = np.stack(
+            [np.stack([-c, -s, -s * dx + c * dy], 1), np.stack([s, -c, -c * dx - s * dy], 1), np.stack([z, z, -o], 1)],
+            1,
+        )  # (m, 3 residuals, 3 vars) of node i
         Ej = np.stack([np.stack([c, s, z], 1), np.stack([-s, c, z], 1), np.stack([z, z, o], 1)], 1)
         Ri, Rj = np.einsum("mab,mbc->mac", W, Ei), np.einsum("mab,mbc->mac", W, Ej)
         ra = 3 * np.arange(m)[:, None, None] + np.arange(3)[None, :, None]
         rows = [np.broadcast_to(ra, (m, 3, 3)).ravel()] * 2
-        cols = [(3 * I[:, None, None] + np.arange(3)[None, None, :] + 0 * ra).ravel(),
-                (3 * J[:, None, None] + np.arange(3)[None, None, :] + 0 * ra).ravel()]
+        cols = [
+            (3 * I[:, None, None] + np.arange(3)[None, None, :] + 0 * ra).ravel(),
+            (3 * J[:, None, None] + np.arange(3)[None, None, :] + 0 * ra).ravel(),
+        ]
         vals = [Ri.ravel(), Rj.ravel()]
         rows.append(3 * m + np.arange(3))
         cols.append(np.arange(3))
         vals.append(np.full(3, 1e4))
-        return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                                 shape=(3 * m + 3, x.size))
+        return sparse.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * m + 3, x.size)
+        )
 
     def optimize(self, max_nfev: int = 50) -> tuple[float, float]:
         """Optimise every node in place; returns the cost (half the sum of squared whitened
@@ -108,8 +119,18 @@ class PoseGraph:
         x0 = np.asarray(self.poses)
         args = (I, J, Z, W, x0[0].copy())
         r0 = self._residual(x0.ravel(), *args)
-        res = least_squares(self._residual, x0.ravel(), jac=self._jacobian, args=args, method="trf",
-                            loss="soft_l1", f_scale=3.0, x_scale=1.0, max_nfev=max_nfev, tr_solver="lsmr")
+        res = least_squares(
+            self._residual,
+            x0.ravel(),
+            jac=self._jacobian,
+            args=args,
+            method="trf",
+            loss="soft_l1",
+            f_scale=3.0,
+            x_scale=1.0,
+            max_nfev=max_nfev,
+            tr_solver="lsmr",
+        )
         p = res.x.reshape(-1, 3)
         p[:, 2] = _wrap(p[:, 2])
         self.poses = list(p)

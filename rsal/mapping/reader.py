@@ -21,7 +21,7 @@ import ormsgpack
 from ..errors import RsalError
 from ..interfaces.position2d import Position2dData
 from ..interfaces.ranger import RangerData
-from ..record.format import RecordingError, TRUTH_PREFIX
+from ..record.format import TRUTH_PREFIX, RecordingError
 
 __all__ = ["MapInputError", "Scans", "read_scans", "MIN_SCANS"]
 
@@ -98,7 +98,9 @@ def read_scans(path: str | Path, robot: str | None = None) -> Scans:
         if not have:
             raise MapInputError(f"{path}: no laser scans in the recording; record a robot's laser (rsal record r0:*:*)")
         if len(have) > 1:
-            raise MapInputError(f"{path}: lasers of several robots ({', '.join(sorted(have))}); choose one with --robot")
+            raise MapInputError(
+                f"{path}: lasers of several robots ({', '.join(sorted(have))}); choose one with --robot"
+            )
         robot = next(iter(have))
     if robot not in have:
         names = sorted(set(have) | set(odo))
@@ -131,7 +133,7 @@ def read_scans(path: str | Path, robot: str | None = None) -> Scans:
     inside = (t >= pt[0]) & (t <= pt[-1])
     if inside.sum() < MIN_SCANS:
         raise MapInputError(f"{path}: the odometry of {robot!r} does not cover its scans' times; record both together")
-    scans = [s for s, k in zip(scans, inside) if k]
+    scans = [s for s, k in zip(scans, inside, strict=True) if k]
     t = t[inside]
     s0 = scans[0]
     angles = s0.angle_min + s0.angle_step * np.arange(nbeams)

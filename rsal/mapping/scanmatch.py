@@ -106,9 +106,18 @@ SIGMA = 0.02  # m: the expected point-to-line noise
 SAMPLES_PER_INDEPENDENT = 10.0
 
 
-def icp(ref: Reference, pts: np.ndarray, guess, *, nrm: np.ndarray | None = None, iters: int = 25,
-        max_dist: float = 0.5, prior: tuple[float, float] = (0.05, 0.05), inlier: float = 0.05,
-        center=None) -> MatchResult:
+def icp(
+    ref: Reference,
+    pts: np.ndarray,
+    guess,
+    *,
+    nrm: np.ndarray | None = None,
+    iters: int = 25,
+    max_dist: float = 0.5,
+    prior: tuple[float, float] = (0.05, 0.05),
+    inlier: float = 0.05,
+    center=None,
+) -> MatchResult:
     """Point-to-line ICP of ``pts`` (robot frame; ``nrm`` their normals towards the sensor, which
     keeps points from pairing with the far face of a thin wall) against ``ref``, from ``guess``;
     ``prior`` is the standard deviation (m, rad) of the guess (a weak pull that only matters where
@@ -118,7 +127,7 @@ def icp(ref: Reference, pts: np.ndarray, guess, *, nrm: np.ndarray | None = None
     lam = np.diag([1 / prior[0] ** 2, 1 / prior[0] ** 2, 1 / prior[1] ** 2])
     sigma = SIGMA
     gate = max_dist
-    for it in range(iters):
+    for _ in range(iters):
         w = transform(x, pts)
         m, jm, _ = _associate(ref, w, None if nrm is None else rotate(x[2], nrm), gate)
         if m.sum() < 10:
@@ -168,9 +177,18 @@ def _wrap(a):
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 
-def correlative(ref_pts: np.ndarray, pts: np.ndarray, guess, *, win_xy: float = 0.5, win_yaw: float = 0.2,
-                res: float = 0.05, yaw_step: float = 0.01, sigma: float = 0.05,
-                prior: float = 0.3) -> tuple[np.ndarray, float]:
+def correlative(
+    ref_pts: np.ndarray,
+    pts: np.ndarray,
+    guess,
+    *,
+    win_xy: float = 0.5,
+    win_yaw: float = 0.2,
+    res: float = 0.05,
+    yaw_step: float = 0.01,
+    sigma: float = 0.05,
+    prior: float = 0.3,
+) -> tuple[np.ndarray, float]:
     """The pose in a window around ``guess`` whose points best fit a likelihood field of
     ``ref_pts`` (world frame), each score weighted by a Gaussian of the offset (``prior`` m) so
     that where the fit is flat (a corridor) the guess wins; returns the pose and its mean

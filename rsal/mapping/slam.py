@@ -70,8 +70,13 @@ class SlamResult:
     graph: PoseGraph | None = None
 
 
-def run_slam(sc: Scans, initial_pose=(0.0, 0.0, 0.0), params: SlamParams | None = None,
-             progress=None, progress_every: float = 0.5) -> SlamResult:
+def run_slam(
+    sc: Scans,
+    initial_pose=(0.0, 0.0, 0.0),
+    params: SlamParams | None = None,
+    progress=None,
+    progress_every: float = 0.5,
+) -> SlamResult:
     """Run the front and back end over the scans; ``initial_pose`` is the robot's pose at the first
     scan in the map frame; ``progress(i, n, keyframes, loops)`` every ``progress_every`` s."""
     p = params or SlamParams()
@@ -89,7 +94,7 @@ def run_slam(sc: Scans, initial_pose=(0.0, 0.0, 0.0), params: SlamParams | None 
     kf_scan: list[int] = []  # used-scan index of each keyframe
     loops, tries = [], 0
     ref: Reference | None = None
-    last_loop_try = -10**9
+    last_loop_try = -(10**9)
     next_report = time.monotonic() + progress_every
 
     def kf_world(k: int):
@@ -98,7 +103,7 @@ def run_slam(sc: Scans, initial_pose=(0.0, 0.0, 0.0), params: SlamParams | None 
 
     def rebuild_ref():
         ks = range(max(0, len(kf_scan) - p.submap), len(kf_scan))
-        P, N = zip(*(kf_world(k) for k in ks))
+        P, N = zip(*(kf_world(k) for k in ks), strict=True)
         return Reference(np.vstack(P), np.vstack(N))
 
     for i in range(n):
@@ -167,8 +172,9 @@ def run_slam(sc: Scans, initial_pose=(0.0, 0.0, 0.0), params: SlamParams | None 
     del chi
     if progress is not None:
         progress(n, n, len(kf_scan), len(loops))
-    return SlamResult(final, np.asarray(used), np.asarray(kf_scan), loops, tries, cost, residual,
-                      time.perf_counter() - t_start, graph)
+    return SlamResult(
+        final, np.asarray(used), np.asarray(kf_scan), loops, tries, cost, residual, time.perf_counter() - t_start, graph
+    )
 
 
 def _edge_info(info_world, yaw_i: float, floor, z, p: SlamParams, odom: bool = True) -> np.ndarray:
@@ -213,7 +219,7 @@ def _try_loop(graph: PoseGraph, kf_scan, local_pts, local_nrm, k: int, p: SlamPa
     if d[j] > p.loop_radius:
         return None
     lo, hi = max(0, j - 4), min(k - p.loop_gap + 1, j + 5)
-    pts_w, nrm_w = zip(*(kf_world(q) for q in range(lo, hi)))
+    pts_w, nrm_w = zip(*(kf_world(q) for q in range(lo, hi)), strict=True)
     ref_pts, ref_nrm = np.vstack(pts_w), np.vstack(nrm_w)
     scan = local_pts[kf_scan[k]]
     if len(scan) < 30 or len(ref_pts) < 30:
@@ -221,8 +227,7 @@ def _try_loop(graph: PoseGraph, kf_scan, local_pts, local_nrm, k: int, p: SlamPa
     sub = scan[:: max(1, len(scan) // 150)]
     coarse, score = correlative(ref_pts, sub, P[k], win_xy=p.loop_window, win_yaw=p.loop_yaw)
     m = icp(Reference(ref_pts, ref_nrm), scan, coarse, nrm=local_nrm[kf_scan[k]], prior=p.loop_prior, center=P[k])
-    if (m.inliers < p.loop_inliers or m.constraint < p.loop_constraint
-            or np.hypot(*(m.pose[:2] - coarse[:2])) > 0.15):
+    if m.inliers < p.loop_inliers or m.constraint < p.loop_constraint or np.hypot(*(m.pose[:2] - coarse[:2])) > 0.15:
         return False
     z = between(P[j], m.pose)
     graph.add_edge(j, k, z, loop=True, info=_edge_info(m.info, P[j][2], p.loop_floor_sigma, z, p, odom=False))

@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RsalError
-from ..msgs import Describe, ok_reply
 from ..interfaces.position2d import Position2dData
 from ..interfaces.ranger import RangerData
+from ..msgs import Describe, ok_reply
 from ..record.format import McapWriter, liveliness_message, truth_key
 
 __all__ = ["TourError", "TourStats", "run_tour", "plan_waypoints"]
@@ -89,7 +89,9 @@ class _Planner:
             cols += [ib, ia]
             vals += [c, c]
         n = ok.size
-        self.graph = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+        self.graph = sparse.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
+        )
 
     def cell(self, x: float, y: float) -> int:
         ix = int((x - self.origin[0]) / self.res)
@@ -174,17 +176,34 @@ def _load_waypoints(path: str) -> np.ndarray:
 
 
 def _describe(node: str, iface: str, rate: float, geometry: dict, ops: list[str], cmd: str, data: str) -> bytes:
-    d = Describe(node=node, interface=iface, index=0, driver="sim", rate=rate, geometry=geometry,
-                 ops=["describe", *ops], cmd=cmd, data=data)
+    d = Describe(
+        node=node,
+        interface=iface,
+        index=0,
+        driver="sim",
+        rate=rate,
+        geometry=geometry,
+        ops=["describe", *ops],
+        cmd=cmd,
+        data=data,
+    )
     return ok_reply(**d.to_dict())
 
 
-def run_tour(world_path: str, out: str, *, robot: str | None = None, minutes: float = 2.0,
-             waypoints: str | None = None, seed: int = 1, progress=None) -> TourStats:
+def run_tour(
+    world_path: str,
+    out: str,
+    *,
+    robot: str | None = None,
+    minutes: float = 2.0,
+    waypoints: str | None = None,
+    seed: int = 1,
+    progress=None,
+) -> TourStats:
     """Drive the tour and write ``out``; returns its figures. ``progress(stats)`` about once a second."""
     from simulator.errors import SimulatorError
-    from simulator.world import World
     from simulator.loader import load_world
+    from simulator.world import World
 
     t_wall = time.perf_counter()
     try:
@@ -226,7 +245,7 @@ def run_tour(world_path: str, out: str, *, robot: str | None = None, minutes: fl
     while True:
         loop = [(x0, y0), *map(tuple, wps), (x0, y0)]
         path_parts = []
-        for a, b in zip(loop[:-1], loop[1:]):
+        for a, b in zip(loop[:-1], loop[1:], strict=True):
             p = planner.path(planner.cell(*a), planner.cell(*b))
             if len(p) == 0:
                 raise TourError(f"waypoint ({b[0]:g}, {b[1]:g}) cannot be reached from ({a[0]:g}, {a[1]:g}); move it")
@@ -243,11 +262,27 @@ def run_tour(world_path: str, out: str, *, robot: str | None = None, minutes: fl
     st = TourStats(waypoints=len(wps))
     dt = world.spec.interval_sim
     t0_ns = 1_700_000_000 * 10**9
-    pos_geo = {"size": list(spec.size[:2]), "max_speed": list(spec.max_speed), "max_accel": list(spec.max_accel),
-               "frame": "odom", "model": robot}
-    las_geo = {"kind": rspec.kind, "pose": list(rspec.pose),
-               "sensors": [{"pose": list(s.pose), "fov": s.fov, "samples": s.samples, "range_min": s.range_min,
-                            "range_max": s.range_max} for s in rspec.sensors]}
+    pos_geo = {
+        "size": list(spec.size[:2]),
+        "max_speed": list(spec.max_speed),
+        "max_accel": list(spec.max_accel),
+        "frame": "odom",
+        "model": robot,
+    }
+    las_geo = {
+        "kind": rspec.kind,
+        "pose": list(rspec.pose),
+        "sensors": [
+            {
+                "pose": list(s.pose),
+                "fov": s.fov,
+                "samples": s.samples,
+                "range_min": s.range_min,
+                "range_max": s.range_max,
+            }
+            for s in rspec.sensors
+        ],
+    }
     pkey, lkey = f"rsal/{robot}/position2d/0", f"rsal/{robot}/laser/0"
     end_t = minutes * 60.0
     idx = 0  # the path point being pursued
@@ -256,8 +291,15 @@ def run_tour(world_path: str, out: str, *, robot: str | None = None, minutes: fl
     next_report = time.monotonic() + 1.0
     with McapWriter(out, templates=f"{robot}:*:*", started_ns=t0_ns) as w:
         for key, iface, rate, geo, ops, cmd, data in (
-            (pkey, "position2d", 1.0 / dt, pos_geo, ["set_odom", "motor_power", "stop", "estop", "estop_release"],
-             "VelocityCmd", "Position2dData"),
+            (
+                pkey,
+                "position2d",
+                1.0 / dt,
+                pos_geo,
+                ["set_odom", "motor_power", "stop", "estop", "estop_release"],
+                "VelocityCmd",
+                "Position2dData",
+            ),
             (lkey, "laser", 1.0 / rspec.interval, las_geo, ["get"], "", "RangerData"),
         ):
             w.write("liveliness", key, liveliness_message(True), t0_ns, t0_ns)
@@ -289,8 +331,12 @@ def run_tour(world_path: str, out: str, *, robot: str | None = None, minutes: fl
             prev_true = np.array(pose[:2])
             odo = world.odometry(robot)
             vel = world.velocity(robot)
-            w.write("data", pkey + "/data",
-                    Position2dData(t, odo, (vel[0], 0.0, vel[1]), world.stalled(robot)).to_msgpack(), tn)
+            w.write(
+                "data",
+                pkey + "/data",
+                Position2dData(t, odo, (vel[0], 0.0, vel[1]), world.stalled(robot)).to_msgpack(),
+                tn,
+            )
             w.write("truth", truth_key(robot), _truth(t, pose), tn, tn)
             r = world.ranger(robot, lidx)
             if r is not None and r.time != last_scan:
@@ -324,11 +370,20 @@ def main(args) -> int:
         line = f"rsal tour: {st.sim_seconds:6.1f} s simulated, {st.scans} scans, {st.distance:.1f} m, {st.loops} loops"
         print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
 
-    st = run_tour(args.world, args.output, robot=args.robot, minutes=args.minutes, waypoints=args.waypoints,
-                  seed=args.seed, progress=progress)
+    st = run_tour(
+        args.world,
+        args.output,
+        robot=args.robot,
+        minutes=args.minutes,
+        waypoints=args.waypoints,
+        seed=args.seed,
+        progress=progress,
+    )
     if tty:
         print(file=sys.stderr)
-    print(f"rsal tour: wrote {args.output}: {st.sim_seconds:.0f} s simulated, {st.scans} scans, "
-          f"{st.distance:.1f} m driven, {st.waypoints} waypoints, {st.loops} loop(s) closed back at the start, "
-          f"{st.wall:.1f} s wall")
+    print(
+        f"rsal tour: wrote {args.output}: {st.sim_seconds:.0f} s simulated, {st.scans} scans, "
+        f"{st.distance:.1f} m driven, {st.waypoints} waypoints, {st.loops} loop(s) closed back at the start, "
+        f"{st.wall:.1f} s wall"
+    )
     return 0

@@ -28,9 +28,8 @@ recorder that was killed). This module holds the conventions ``rsal record`` wri
 from __future__ import annotations
 
 import math
-import struct
-
 import os
+import struct
 from pathlib import Path
 
 import ormsgpack
@@ -109,8 +108,15 @@ class McapWriter:
     """A recording file written in one go: header and metadata as ``rsal record`` writes them,
     then :meth:`write` per message (channels registered on first use), :meth:`close` for the index."""
 
-    def __init__(self, path: str | os.PathLike, *, templates: str = "**", library: str = "rsal record",
-                 started_ns: int = 0, chunk_size: int = 256 * 1024):
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        templates: str = "**",
+        library: str = "rsal record",
+        started_ns: int = 0,
+        chunk_size: int = 256 * 1024,
+    ):
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path)

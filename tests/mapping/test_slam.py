@@ -81,8 +81,9 @@ def test_slam_trajectory_beats_odometry_against_ground_truth(tour):
 def test_built_map_walls_lie_on_the_true_walls(built, truth_grid):
     m = read_map(f"{built}.yaml")
     assert m.resolution == 0.05
-    precision, coverage = wall_agreement(m.occupancy[::-1], m.resolution, m.origin, truth_grid.occupied,
-                                         truth_grid.resolution, truth_grid.origin)
+    precision, coverage = wall_agreement(
+        m.occupancy[::-1], m.resolution, m.origin, truth_grid.occupied, truth_grid.resolution, truth_grid.origin
+    )
     assert precision >= 0.95 and coverage >= 0.85, (precision, coverage)
     assert Path(f"{built}.trajectory.png").stat().st_size > 0
 
@@ -92,8 +93,9 @@ def test_map_yaml_loads_through_the_mapfile_path(built, truth_grid):
 
     meta = yaml.safe_load(Path(f"{built}.yaml").read_text())
     assert set(meta) >= {"image", "resolution", "origin", "occupied_thresh", "free_thresh", "negate"}
-    g = GridMap.from_image(Path(f"{built}.yaml").parent / meta["image"], meta["resolution"],
-                           tuple(meta["origin"][:2]))  # what the mapfile driver does with the bitmap
+    g = GridMap.from_image(
+        Path(f"{built}.yaml").parent / meta["image"], meta["resolution"], tuple(meta["origin"][:2])
+    )  # what the mapfile driver does with the bitmap
     iy, ix = np.nonzero(g.occupied)
     assert len(ix) > 100
     x, y = g.cell_to_world(ix, iy)
