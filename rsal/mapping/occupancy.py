@@ -14,8 +14,8 @@ from numba import njit
 
 __all__ = ["occupancy_grid", "L_OCC", "L_FREE"]
 
-L_OCC = 0.9  # log odds added by a return
-L_FREE = -0.4  # log odds added by a beam passing
+L_OCC = 2.0  # log odds added by a return (a wall seen at a grazing angle is also passed by beams)
+L_FREE = -0.3  # log odds added by a beam passing
 L_MIN, L_MAX = -4.0, 4.0
 
 
@@ -43,7 +43,7 @@ def _cast(logodds, hits, sx, sy, ex, ey, ret, l_occ, l_free, lmin, lmax):  # pra
                 y += sty
         if 0 <= x1 < w and 0 <= y1 < h:
             if ret[k]:
-                v = logodds[y1, x1] + l_occ - l_free * 0.0
+                v = logodds[y1, x1] + l_occ
                 logodds[y1, x1] = lmax if v > lmax else v
             else:
                 v = logodds[y1, x1] + l_free
