@@ -6,10 +6,13 @@ Nodes are keyframe poses (x, y, yaw); an edge ``(i, j, z, info)`` says node ``j`
 standard deviations ``sigma`` (m, m, rad). The optimiser minimises the sum of squared whitened
 errors ``S ((inv(x_i) * x_j) - z)``, ``S`` the Cholesky factor of ``info`` (Lu and Milios,
 "Globally consistent range scan alignment", 1997; Grisetti et al., "A tutorial on graph-based SLAM", 2010) with
-``scipy.optimize.least_squares`` and an analytic sparse Jacobian (``scipy.sparse``), a
-``soft_l1`` loss that limits what a wrong loop closure can do, and node 0 held by a strong prior.
-scipy is already a dependency and solves a few thousand poses in well under a second; g2o or
-GTSAM would add a compiled dependency for no gain at this size.
+Levenberg-Marquardt on the sparse normal equations with an analytic sparse Jacobian
+(``scipy.sparse``), each step solved by ``scipy.sparse.linalg.spsolve`` (SuperLU), with
+``soft_l1`` weights (iteratively re-weighted) that limit what a wrong loop closure can do, and
+node 0 held by a strong prior. ``scipy.optimize.least_squares`` does the same with an iterative
+``lsmr`` inner solver, which took 0.3 s per optimisation of a 400-keyframe graph (half of the
+mapping time of a 6-minute tour); the direct sparse solve takes milliseconds. g2o or GTSAM would
+add a compiled dependency for no gain at this size.
 """
 
 from __future__ import annotations
@@ -18,9 +21,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import sparse
-from scipy.optimize import least_squares
+from scipy.sparse.linalg import spsolve
 
 __all__ = ["PoseGraph", "compose", "between"]
+
+
+F_SCALE = 3.0  # whitened error beyond which an edge's weight falls off (soft_l1, as scipy's least_squares)
+
+
+class _Result:
+    def __init__(self, x, fun):
+        self.x, self.fun = x, fun
+
+
+def _robust_cost(r: np.ndarray) -> float:
+    """Sum of soft_l1 costs: 2 f^2 (sqrt(1 + (r / f)^2) - 1)."""
+    return float(np.sum(2.0 * F_SCALE**2 * (np.sqrt(1.0 + (r / F_SCALE) ** 2) - 1.0)))
 
 
 def _wrap(a):
@@ -119,18 +135,30 @@ class PoseGraph:
         x0 = np.asarray(self.poses)
         args = (I, J, Z, W, x0[0].copy())
         r0 = self._residual(x0.ravel(), *args)
-        res = least_squares(
-            self._residual,
-            x0.ravel(),
-            jac=self._jacobian,
-            args=args,
-            method="trf",
-            loss="soft_l1",
-            f_scale=3.0,
-            x_scale=1.0,
-            max_nfev=max_nfev,
-            tr_solver="lsmr",
-        )
+        x = x0.ravel().copy()
+        cost = _robust_cost(r0)
+        lam = 1e-4
+        for _ in range(max_nfev):  # Levenberg-Marquardt, robust weights re-computed each step (IRLS)
+            r = self._residual(x, *args)
+            Jm = self._jacobian(x, *args)
+            w = 1.0 / np.sqrt(1.0 + (r / F_SCALE) ** 2)  # soft_l1's weight per residual
+            JW = Jm.multiply(w[:, None]).tocsr()
+            H = (JW.T @ Jm).tocsc()
+            g = JW.T @ r
+            while True:
+                step = spsolve(H + sparse.diags(lam * (H.diagonal() + 1e-9)), -g)
+                x_new = x + step
+                new = _robust_cost(self._residual(x_new, *args))
+                if new <= cost or lam > 1e6:
+                    break
+                lam *= 10.0
+            if new > cost:
+                break
+            done = cost - new < 1e-9 * max(cost, 1.0) or np.abs(step).max() < 1e-7
+            x, cost, lam = x_new, new, max(lam / 10.0, 1e-7)
+            if done:
+                break
+        res = _Result(x, self._residual(x, *args))
         p = res.x.reshape(-1, 3)
         p[:, 2] = _wrap(p[:, 2])
         self.poses = list(p)
