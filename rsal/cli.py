@@ -1,6 +1,7 @@
 """The ``rsal`` command line.
 
 ``rsal`` itself knows the commands of the RSAL layer (``ls``, ``goto``, ``estop``, ``record``, ``play``,
+``map``, ``tour``,
 ``router``, ``secure``, ``watch``); the other layers add theirs through the ``rsal.commands``
 entry-point group (``serve`` and ``sim`` from ``mrs_bridge``, ``demo`` from ``agents``), so this package
 never imports the layers above or beside it. Each entry point is a function ``register(subparsers)``
@@ -257,6 +258,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .record import register as register_record
 
     register_record(sub)
+    from .mapping.cli import register as register_mapping
+
+    register_mapping(sub)
     from .router import register as register_router
 
     register_router(sub)
@@ -282,7 +286,14 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Parse the command line and run the command inside the safety net; returns the exit code."""
     ap = build_parser()
-    args = ap.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["map"]:  # its own parser: 'rsal map RUN.mcap ...', 'rsal map align ...', '--from-world'
+        from .mapping.cli import main as map_main
+
+        rest = [a for a in argv[1:] if a not in ("-v", "--verbose")]
+        args = argparse.Namespace(command="map", verbose=len(argv) - 1 - len(rest), func=lambda _a: map_main(rest))
+    else:
+        args = ap.parse_args(argv)
     if not getattr(args, "func", None):
         ap.print_help()
         return 2

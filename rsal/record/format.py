@@ -16,16 +16,25 @@ recorder that was killed). This module holds the conventions ``rsal record`` wri
 - ``kind = "rpc"`` channels (``rsal/<dev>/rpc/describe``) hold the device's ``describe`` reply as it
   came (msgpack ``{ok: true, ...}``), recorded when the device appeared;
 - ``kind = "liveliness"`` channels (the token key ``rsal/<dev>``) hold msgpack ``{"alive": bool}``
-  each time the device joined or left.
+  each time the device joined or left;
+- ``kind = "truth"`` channels (``truth/<robot>``, written only by ``rsal tour`` from a simulator)
+  hold msgpack ``{"t": s, "pose": [x, y, yaw]}``, the robot's true pose in the world frame; a
+  player never publishes them, tools that judge a map read them.
+
+:class:`McapWriter` writes these records for a program that makes a recording without a fabric
+(``rsal tour``); the live recorder keeps its own writer thread.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import struct
+from pathlib import Path
 
 import ormsgpack
 
+from .. import keys
 from ..errors import RsalError
 
 __all__ = [
@@ -38,6 +47,9 @@ __all__ = [
     "RecordingError",
     "source_time_ns",
     "liveliness_message",
+    "channel_meta",
+    "truth_key",
+    "McapWriter",
 ]
 
 PROFILE = "rsal"
@@ -45,7 +57,9 @@ META_NAME = "rsal.recording"
 FORMAT_VERSION = "1"
 ENCODING = "msgpack"
 #: what a channel holds: device data, events, commands, agent services, rpc replies, tokens
-KINDS = ("data", "event", "cmd", "svc", "rpc", "liveliness")
+KINDS = ("data", "event", "cmd", "svc", "rpc", "liveliness", "truth")
+#: topic prefix of the simulator's ground-truth poses (kind ``truth``): ``truth/<robot>``
+TRUTH_PREFIX = "truth"
 #: the 8 bytes every MCAP file starts (and, when finished, ends) with
 MAGIC = b"\x89MCAP0\r\n"
 
@@ -74,3 +88,71 @@ def source_time_ns(payload: bytes, default: int) -> int:
 
 def liveliness_message(alive: bool) -> bytes:
     return ormsgpack.packb({"alive": bool(alive)})
+
+
+def truth_key(robot: str) -> str:
+    """The topic of ``robot``'s ground-truth pose (kind ``truth``)."""
+    return f"{TRUTH_PREFIX}/{robot}"
+
+
+def channel_meta(kind: str, key: str) -> dict[str, str]:
+    """A channel's metadata: its ``kind`` and, for a device key, ``device`` (``r0:laser:0``)."""
+    meta = {"kind": kind}
+    parsed = keys.parse_key(key) if kind != "truth" else None
+    if parsed is not None:
+        meta["device"] = str(parsed[0])
+    return meta
+
+
+class McapWriter:
+    """A recording file written in one go: header and metadata as ``rsal record`` writes them,
+    then :meth:`write` per message (channels registered on first use), :meth:`close` for the index."""
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        templates: str = "**",
+        library: str = "rsal record",
+        started_ns: int = 0,
+        chunk_size: int = 256 * 1024,
+    ):
+        from mcap.writer import CompressionType, Writer
+
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(self.path, "wb")
+        self._w = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        self._w.start(profile=PROFILE, library=library)
+        self._w.add_metadata(
+            META_NAME,
+            {
+                "format_version": FORMAT_VERSION,
+                "protocol_version": str(keys.PROTOCOL_VERSION),
+                "templates": templates,
+                "commands": "false",
+                "services": "false",
+                "started_unix_ns": str(started_ns),
+                "part": "0",
+            },
+        )
+        self._channels: dict[str, int] = {}
+        self.messages = 0
+
+    def write(self, kind: str, key: str, payload: bytes, log_ns: int, publish_ns: int | None = None) -> None:
+        ch = self._channels.get(key)
+        if ch is None:
+            ch = self._channels[key] = self._w.register_channel(key, ENCODING, 0, channel_meta(kind, key))
+        pub = source_time_ns(payload, log_ns) if publish_ns is None else publish_ns
+        self._w.add_message(ch, log_ns, payload, pub, sequence=self.messages & 0xFFFFFFFF)
+        self.messages += 1
+
+    def close(self) -> None:
+        self._w.finish()
+        self._file.close()
+
+    def __enter__(self) -> McapWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -28,6 +28,7 @@ from mcap.writer import CompressionType, Writer
 
 from .. import keys
 from .format import ENCODING, FORMAT_VERSION, META_NAME, PROFILE, liveliness_message, source_time_ns
+from .format import channel_meta as _channel_meta
 
 __all__ = ["Recorder", "RecordOptions", "RecordStats"]
 
@@ -280,14 +281,6 @@ class Recorder:
             self.session.get(rkey, on_reply, timeout=self.opts.describe_timeout)
         except Exception as e:  # the session is closing
             log.debug("describe of %s not asked: %s", token_key, e)
-
-
-def _channel_meta(kind: str, key: str) -> dict[str, str]:
-    meta = {"kind": kind}
-    parsed = keys.parse_key(key)
-    if parsed is not None:
-        meta["device"] = str(parsed[0])
-    return meta
 
 
 def _dedupe(kes: list[str]) -> list[str]:
