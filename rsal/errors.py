@@ -22,6 +22,10 @@ category, the class also derives from it, so ``except ValueError`` still works::
     ├── SecureError (ValueError)                rsal.secure: a fleet folder or identity that cannot be made
     ├── RecordingError (ValueError)             rsal.record: a recording that cannot be written or read
     ├── MapFileError (ValueError)               rsal.mapping.mapyaml: a map file that cannot be read or written
+    ├── MapError (ValueError)                   rsal.mapping.cli: a bad ``rsal map`` argument
+    ├── MapInputError (ValueError)              rsal.mapping.reader: a recording no map can be built from
+    ├── TourError (ValueError)                  rsal.mapping.tour: a tour that cannot be made
+    ├── WireError (ValueError)                  mrs_bridge.ros2.wire: a key, attachment or token not in rmw_zenoh's form
     └── _Failure                                agents.demo: the demo cannot go on (private)
 
     SimulatorError                              simulator.errors: a root of its own, see below

@@ -32,6 +32,8 @@ import struct
 from dataclasses import dataclass, field
 from enum import StrEnum
 
+from rsal.errors import RsalError
+
 __all__ = [
     "ADMIN_SPACE",
     "Kind",
@@ -52,7 +54,7 @@ __all__ = [
 ADMIN_SPACE = "@ros2_lv"
 
 
-class WireError(ValueError):
+class WireError(RsalError, ValueError):
     """A key, token or attachment that is not what rmw_zenoh writes."""
 
 
