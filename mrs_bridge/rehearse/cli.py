@@ -226,6 +226,7 @@ def _run(args: argparse.Namespace) -> int:
     urg = HokuyoEmulator(args.laser, scene=scene)
     tmp = Path(tempfile.mkdtemp(prefix="rsal-rehearse-"))
     child: subprocess.Popen | None = None
+    ending = threading.Event()  # set once this process stops the child itself
     try:
         say(f"Pioneer {args.pioneer} emulated on {pioneer.path} (body: {robot} in the world)")
         say(f"{args.laser} emulated on {urg.path} at ({pose[0]:g}, {pose[1]:g}, {math.degrees(pose[2]):g} deg)")
@@ -253,12 +254,13 @@ def _run(args: argparse.Namespace) -> int:
         else:
             child = subprocess.Popen(serve)
             say(f"started the drivers: rsal serve (pid {child.pid})")
-            threading.Thread(target=_watch_child, args=(child,), name="rehearse-child", daemon=True).start()
+            threading.Thread(target=_watch_child, args=(child, ending), name="rehearse-child", daemon=True).start()
         cfg = rehearsal_config(world, robot, args.node, str(args.world))
         args.command = "rehearse"
         rc = run_server(cfg, args, shared={"simulator.world": world, COUPLINGS_KEY: [body, scene]})
         return rc
     finally:
+        ending.set()
         if child is not None and child.poll() is None:
             child.send_signal(signal.SIGTERM)
             try:
@@ -273,10 +275,12 @@ def _run(args: argparse.Namespace) -> int:
         tmp.rmdir()
 
 
-def _watch_child(child: subprocess.Popen) -> None:
+def _watch_child(child: subprocess.Popen, ending: threading.Event) -> None:
     """When the drivers' server ends by itself, the rehearsal ends too (it has no robot to serve)."""
     rc = child.wait()
-    if rc != 0 and rc != -signal.SIGTERM:
+    if ending.is_set():
+        return
+    if rc != 0:
         print(f"{PROG}: the drivers' server (rsal serve) exited with code {rc}; see its message above", file=sys.stderr)
     os.kill(os.getpid(), signal.SIGTERM)
 

@@ -1,0 +1,196 @@
+"""Hardware rehearsal (mrs_bridge/rehearse): the coupling of a simulated world to the emulated
+Pioneer and URG, in-process against the known geometry of maps/testroom.world, and ``rsal rehearse``
+as a real process: the real p2os driver drives the world's robot (judged by the world's ground
+truth, ``world:simulation:0``), its command timeout and the emergency stop stop it, the real hokuyo
+driver's laser sees the test room's walls where they are, and one-line errors for a wrong robot
+name or world file."""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import threading
+import time
+
+import numpy as np
+import pytest
+from conftest import ROOT, rsal_cmd, wait_until
+
+from mrs_bridge.emulators.urg import SENSORS
+from mrs_bridge.rehearse.cli import user_config
+from mrs_bridge.rehearse.coupling import WorldLaser, WorldRobot
+from rsal.msgs import VelocityCmd
+
+TESTROOM = ROOT / "maps" / "testroom.world"
+URG = SENSORS["URG-04LX"]
+
+
+@pytest.fixture(scope="module")
+def world():
+    from simulator.loader import load_world
+    from simulator.world import World
+
+    return World(load_world(TESTROOM))
+
+
+# ---------------------------------------------------------------------------- in-process coupling
+def test_the_laser_scene_is_the_test_rooms_geometry(world):
+    """r0 at (-2, 0) facing +x, the URG 0.13 m ahead: the box's west face 3.87 m ahead, the north
+    and south walls 3.80 m to either side (maps/testroom.world's header)."""
+    scene = WorldLaser(world, "r0", URG, (0.13, 0.0, 0.0))
+    quarter = URG.ares // 4
+    mm = scene(np.array([URG.afrt, URG.afrt + quarter, URG.afrt - quarter]))
+    assert mm[0] == pytest.approx(3870, abs=40)
+    assert mm[1] == pytest.approx(3800, abs=40) and mm[2] == pytest.approx(3800, abs=40)
+    assert URG.angle(URG.afrt + quarter) == pytest.approx(math.pi / 2)
+
+
+def test_the_body_moves_in_the_world_and_reports_its_odometry(world):
+    world.reset()
+    body = WorldRobot(world, "r0")
+    x0 = world.get_pose("r0")[0]
+    body.drive(0.3, 0.0)
+    for _ in range(20):  # 2 s
+        body.before_step(world)
+        world.step()
+        body.after_step(world, world.spec.interval_sim)
+    moved = world.get_pose("r0")[0] - x0
+    s = body.sense()
+    assert 0.45 < moved < 0.6  # accelerating, then 0.3 m/s
+    assert s.odom[0] == pytest.approx(moved, rel=0.1) and s.vel[0] == pytest.approx(0.3, abs=0.02)
+    assert s.paddles == "open" and s.lift == "down" and not s.inner_beam
+    assert 12.0 < s.battery < 12.8
+    body.gripper("close")
+    for _ in range(15):
+        body.before_step(world)
+        world.step()
+        body.after_step(world, world.spec.interval_sim)
+    assert body.sense().paddles == "closed"
+    world.reset()
+
+
+def test_a_user_configuration_gets_the_ptys_and_absolute_paths(tmp_path):
+    doc = user_config(ROOT / "deploy" / "pioneer2dx-urg.toml", "r0", "/dev/pts/98", "/dev/pts/99")
+    by = {d["name"]: d for d in doc["driver"]}
+    assert by["p2os"]["port"] == "/dev/pts/98" and by["hokuyo"]["port"] == "/dev/pts/99"
+    assert by["mapfile"]["filename"] == str((ROOT / "maps" / "floor.png").resolve())
+
+
+# ---------------------------------------------------------------------------- rsal rehearse
+@pytest.fixture
+def rehearsal(procs, port, fabric_factory):
+    p = procs(rsal_cmd("rehearse", str(TESTROOM), "r0", "--listen", f"tcp/127.0.0.1:{port}"))
+    fab = fabric_factory(port)
+    node = fab.node("r0/**")
+    try:
+        node.wait_for("r0/position2d/0", timeout=60)
+        node.wait_for("r0/laser/0", timeout=30)
+    except Exception:
+        pytest.fail(f"the rehearsal did not come up:\n{p.output()}")
+    fab.node("world/**").wait_for("world/simulation/0", timeout=30)
+    sim = fab.device("world:simulation:0")
+    yield p, fab, sim
+    assert p.stop() == 0, p.output()
+    out = p.output()
+    assert "Traceback" not in out
+    child = int(re.search(r"rsal serve \(pid (\d+)\)", out).group(1))
+    with pytest.raises(ProcessLookupError):  # the drivers' server went with the rehearsal
+        os.kill(child, 0)
+
+
+def _truth(sim):
+    q = sim.get_pose("r0")
+    return np.array([q.x, q.y])
+
+
+def _stopped(sim, dt: float = 0.3) -> bool:
+    """Whether the robot's true position stays put for ``dt`` seconds."""
+    a = _truth(sim)
+    time.sleep(dt)
+    return float(np.hypot(*(_truth(sim) - a))) < 1e-4
+
+
+def _drive(pos, v: float, stop: threading.Event):
+    while not stop.is_set():
+        pos.send(VelocityCmd(v, 0.0))
+        time.sleep(0.1)
+
+
+def test_the_real_p2os_driver_drives_the_rehearsed_robot(rehearsal):
+    p, fab, sim = rehearsal
+    pos = fab.device("r0:position2d:0")
+    odom0 = pos.wait_for_data(20).pose
+    start = _truth(sim)
+    stop = threading.Event()
+    t = threading.Thread(target=_drive, args=(pos, 0.3, stop), daemon=True)
+    t.start()
+    try:
+        wait_until(lambda: _truth(sim)[0] - start[0] > 0.8, 15, "the robot to drive 0.8 m (ground truth)")
+    finally:
+        stop.set()
+        t.join()
+    moved = _truth(sim) - start
+    assert abs(moved[1]) < 0.05  # straight on
+    wait_until(lambda: abs(pos.latest.vel[0]) < 1e-3, 5, "the odometry to report the robot stopped")
+    end = _truth(sim) - start
+    odom = np.array(pos.latest.pose[:2]) - np.array(odom0[:2])
+    assert np.hypot(*odom) == pytest.approx(np.hypot(*end), rel=0.1)  # the odometry saw the motion, drifting
+
+
+def test_the_command_timeout_and_the_estop_stop_the_rehearsed_robot(rehearsal):
+    p, fab, sim = rehearsal
+    pos = fab.device("r0:position2d:0")
+    pos.wait_for_data(20)
+    start = _truth(sim)
+    pos.send(VelocityCmd(0.3, 0.0))  # once, never refreshed: cmd_timeout 0.5 s
+    wait_until(lambda: _truth(sim)[0] - start[0] > 0.02, 10, "the robot to start (ground truth)")
+
+    wait_until(lambda: _stopped(sim), 5, "the command timeout to stop the robot (ground truth)")
+    assert _truth(sim)[0] - start[0] < 0.45  # at most 0.5 s at 0.3 m/s plus the pipeline's latency
+
+    start = _truth(sim)
+    stop = threading.Event()
+    t = threading.Thread(target=_drive, args=(pos, 0.3, stop), daemon=True)
+    t.start()
+    try:
+        wait_until(lambda: _truth(sim)[0] - start[0] > 0.2, 10, "the robot to drive again (ground truth)")
+        pos.estop()
+        at_estop = _truth(sim)
+        wait_until(lambda: _stopped(sim), 5, "the e-stop to stop the robot while commands go on")
+        time.sleep(0.5)  # commands keep coming: the robot must stay where it stopped
+        assert np.hypot(*(_truth(sim) - at_estop)) < 0.2
+        held = _truth(sim)
+        time.sleep(0.5)
+        assert np.hypot(*(_truth(sim) - held)) < 1e-3
+    finally:
+        stop.set()
+        t.join()
+    pos.release_estop()
+
+
+def test_the_real_hokuyo_driver_sees_the_test_rooms_walls(rehearsal):
+    p, fab, sim = rehearsal
+    scan = fab.device("r0:laser:0").wait_for_data(20)
+    angles = scan.angle_min + scan.angle_step * np.arange(len(scan.ranges))
+
+    def at(deg):
+        return float(scan.ranges[np.argmin(np.abs(angles - math.radians(deg)))])
+
+    assert at(0) == pytest.approx(3.87, abs=0.05)  # the box's west face
+    assert at(90) == pytest.approx(3.80, abs=0.05) and at(-90) == pytest.approx(3.80, abs=0.05)  # the walls
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        ([str(TESTROOM), "r00"], "no robot named 'r00'; did you mean 'r0'?"),
+        (["maps/nowhere.world", "r0"], "maps/nowhere.world: no such world file"),
+    ],
+)
+def test_user_errors_are_one_line(procs, argv, message):
+    p = procs(rsal_cmd("rehearse", *argv, "--listen", "tcp/127.0.0.1:0"))
+    wait_until(lambda: not p.alive(), 30, "the command to exit")
+    out = p.output()
+    assert p.p.returncode == 1 and message in out and "Traceback" not in out
+    assert len(out.strip().splitlines()) == 1, out
