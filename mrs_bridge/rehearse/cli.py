@@ -81,10 +81,13 @@ def write_toml(doc: dict, header: str = "") -> str:
     return "\n".join(out)
 
 
-def driver_config(world, robot: str, pioneer_pty: str, laser_pty: str, laser: str, laser_pose) -> dict:
+def driver_config(
+    world, robot: str, pioneer_pty: str, laser_pty: str, laser: str, laser_pose, nav: str | None = None
+) -> dict:
     """The configuration ``deploy/pioneer2dx-urg.toml`` would be for this robot: ``p2os`` with
     the devices the robot's body has, the laser as ``ranger:1`` and ``laser:0``, and the world's
-    floorplan as ``map:0`` (the building's map a real robot would be given)."""
+    floorplan as ``map:0`` (the building's map a real robot would be given); with ``nav`` also the
+    navigation stack (:func:`nav_drivers`)."""
     spec = world.model_spec(robot)
     provides = ["odometry::position2d:0"]
     if any(r.kind == "sonar" for r in spec.rangers):
@@ -114,7 +117,37 @@ def driver_config(world, robot: str, pioneer_pty: str, laser_pty: str, laser: st
                 "origin": [float(x0), float(y0)],
             }
         )
+    if nav:
+        if fp is None:
+            raise RehearseError(f"{world.spec.source or 'the world'}: --nav needs a floorplan, the map to navigate on")
+        x, y, a = world.get_pose(robot)
+        drivers += nav_drivers(nav, (x, y, math.degrees(a)))
     return {"server": {"node": robot}, "driver": drivers}
+
+
+def nav_drivers(nav: str, start) -> list[dict]:
+    """The navigation stack of ``deploy/r0-nav.toml`` (thesis A.3) on the robot's own devices:
+    ``amcl`` started at ``start`` (x, y m, yaw deg), the local planner ``nav`` and ``wavefront``,
+    with the parameters ``rsal sim --nav`` uses (:mod:`mrs_bridge.nav.profile`)."""
+    from ..nav import profile
+
+    return [
+        {
+            "name": "amcl",
+            "provides": ["localize:0", "position2d:2"],
+            "requires": ["odometry::position2d:0", "laser:0", "laser::map:0"],
+            "init_pose": [round(float(v), 4) for v in start],
+            "init_pose_var": [0.05, 0.05, math.degrees(math.radians(5) ** 2)],
+            **profile.AMCL,
+        },
+        {"name": nav, "provides": ["position2d:1"], "requires": ["position2d:0", "laser:0"], **profile.LOCAL[nav]},
+        {
+            "name": "wavefront",
+            "provides": ["planner:0"],
+            "requires": ["output::position2d:1", "input::position2d:2", "map:0"],
+            **profile.WAVEFRONT,
+        },
+    ]
 
 
 def user_config(path: Path, robot: str, pioneer_pty: str, laser_pty: str) -> dict:
@@ -230,10 +263,12 @@ def _run(args: argparse.Namespace) -> int:
     try:
         say(f"Pioneer {args.pioneer} emulated on {pioneer.path} (body: {robot} in the world)")
         say(f"{args.laser} emulated on {urg.path} at ({pose[0]:g}, {pose[1]:g}, {math.degrees(pose[2]):g} deg)")
+        if args.robot_config is not None and args.nav:
+            raise RehearseError(f"--nav adds to the generated configuration; add the stack to {args.robot_config}")
         if args.robot_config is not None:
             doc = user_config(Path(args.robot_config), robot, pioneer.path, urg.path)
         else:
-            doc = driver_config(world, robot, pioneer.path, urg.path, args.laser, pose)
+            doc = driver_config(world, robot, pioneer.path, urg.path, args.laser, pose, args.nav)
         cfg_path = tmp / f"{robot}-rehearsal.toml"
         cfg_path.write_text(
             write_toml(doc, f"# rsal rehearse {args.world} {robot}: the robot's drivers on emulated hardware\n")
@@ -303,6 +338,11 @@ def register(sub) -> None:
     )
     p.add_argument("--pioneer", choices=tuple(DIST_CONV), default="P2DX", help="the Pioneer model (default P2DX)")
     p.add_argument("--laser", choices=tuple(SENSORS), default="URG-04LX", help="the laser (default URG-04LX)")
+    p.add_argument(
+        "--nav",
+        choices=("vfh", "nd", "snd"),  # mrs_bridge.nav.profile.LOCAL_PLANNERS
+        help="add the navigation stack to the generated configuration: amcl, this local planner, wavefront",
+    )
     p.add_argument("--seed", type=int, help="random seed of the world (default: the world's)")
     p.add_argument(
         "--node", type=_check_node, default="world", help="node of the world's simulation device (default world)"

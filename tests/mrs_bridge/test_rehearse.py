@@ -78,9 +78,8 @@ def test_a_user_configuration_gets_the_ptys_and_absolute_paths(tmp_path):
 
 
 # ---------------------------------------------------------------------------- rsal rehearse
-@pytest.fixture
-def rehearsal(procs, port, fabric_factory):
-    p = procs(rsal_cmd("rehearse", str(TESTROOM), "r0", "--listen", f"tcp/127.0.0.1:{port}"))
+def _rehearse(procs, port, fabric_factory, *extra: str):
+    p = procs(rsal_cmd("rehearse", str(TESTROOM), "r0", "--listen", f"tcp/127.0.0.1:{port}", *extra))
     fab = fabric_factory(port)
     node = fab.node("r0/**")
     try:
@@ -90,13 +89,30 @@ def rehearsal(procs, port, fabric_factory):
         pytest.fail(f"the rehearsal did not come up:\n{p.output()}")
     fab.node("world/**").wait_for("world/simulation/0", timeout=30)
     sim = fab.device("world:simulation:0")
-    yield p, fab, sim
+    return p, fab, sim
+
+
+def _stop(p):
     assert p.stop() == 0, p.output()
     out = p.output()
     assert "Traceback" not in out
     child = int(re.search(r"rsal serve \(pid (\d+)\)", out).group(1))
     with pytest.raises(ProcessLookupError):  # the drivers' server went with the rehearsal
         os.kill(child, 0)
+
+
+@pytest.fixture
+def rehearsal(procs, port, fabric_factory):
+    r = _rehearse(procs, port, fabric_factory)
+    yield r
+    _stop(r[0])
+
+
+@pytest.fixture
+def rehearsal_nav(procs, port, fabric_factory):
+    r = _rehearse(procs, port, fabric_factory, "--nav", "vfh")
+    yield r
+    _stop(r[0])
 
 
 def _truth(sim):
@@ -179,6 +195,21 @@ def test_the_real_hokuyo_driver_sees_the_test_rooms_walls(rehearsal):
 
     assert at(0) == pytest.approx(3.87, abs=0.05)  # the box's west face
     assert at(90) == pytest.approx(3.80, abs=0.05) and at(-90) == pytest.approx(3.80, abs=0.05)  # the walls
+
+
+def test_the_navigation_stack_drives_the_rehearsed_robot_to_a_goal(rehearsal_nav):
+    """amcl + wavefront + vfh (deploy/r0-nav.toml's stack) on the real drivers' devices: round the
+    box's south side to (0.5, -2.5); judged by the world's ground truth."""
+    from rsal.data import Position
+
+    p, fab, sim = rehearsal_nav
+    fab.node("r0/**").wait_for("r0/planner/0", timeout=60)
+    planner = fab.device("r0:planner:0")
+    goal = (0.5, -2.5)
+    assert planner.set_goal(Position(*goal, 0.0)).result(timeout=90) == "done"
+    assert np.hypot(*(_truth(sim) - goal)) < 0.4, "the robot is not at the goal (ground truth)"
+    loc = fab.device("r0:position2d:2").wait_for_data(5).pose
+    assert np.hypot(*(_truth(sim) - loc[:2])) < 0.3  # localized to the thesis's 0.30 m
 
 
 @pytest.mark.parametrize(
