@@ -251,6 +251,20 @@ def test_the_navigation_stack_drives_the_rehearsed_robot_to_a_goal(rehearsal_nav
     assert np.hypot(*(_truth(sim) - loc[:2])) < 0.3  # localized to the thesis's 0.30 m
 
 
+def test_no_serve_prints_the_command_that_serves_the_robot(procs, port, fabric_factory):
+    p = procs(rsal_cmd("rehearse", str(TESTROOM), "r0", "--no-serve", "--listen", f"tcp/127.0.0.1:{port}"))
+    line = wait_until(
+        lambda: re.search(r"run the robot's drivers yourself with: rsal (serve .*)", p.output()), 60, "the command"
+    )
+    assert "started the drivers" not in p.output()
+    serve = procs(rsal_cmd(*line.group(1).split()))
+    fab = fabric_factory(port)
+    fab.node("r0/**").wait_for("r0/laser/0", timeout=60)
+    scan = fab.device("r0:laser:0").wait_for_data(20)
+    assert float(np.min(scan.ranges)) > 0.5  # the room seen by the real driver through the printed ptys
+    assert serve.stop() == 0 and p.stop() == 0
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
