@@ -236,6 +236,7 @@ def _run(args: argparse.Namespace) -> int:
         spec = load_world(args.world, seed=args.seed)
         for w in spec.warnings:
             print(f"{PROG}: warning: {w}", file=sys.stderr)
+        spec.speedup = 1.0  # the real world runs in real time
         world = World(spec)
     except SimulatorError as e:
         raise RehearseError(str(e)) from None
@@ -260,6 +261,7 @@ def _run(args: argparse.Namespace) -> int:
     tmp = Path(tempfile.mkdtemp(prefix="rsal-rehearse-"))
     child: subprocess.Popen | None = None
     ending = threading.Event()  # set once this process stops the child itself
+    failed: list[int] = []  # the child's exit code when it ended by itself
     try:
         say(f"Pioneer {args.pioneer} emulated on {pioneer.path} (body: {robot} in the world)")
         say(f"{args.laser} emulated on {urg.path} at ({pose[0]:g}, {pose[1]:g}, {math.degrees(pose[2]):g} deg)")
@@ -289,11 +291,13 @@ def _run(args: argparse.Namespace) -> int:
         else:
             child = subprocess.Popen(serve)
             say(f"started the drivers: rsal serve (pid {child.pid})")
-            threading.Thread(target=_watch_child, args=(child, ending), name="rehearse-child", daemon=True).start()
+            watch = threading.Thread(target=_watch_child, args=(child, ending, failed), name="rehearse-child")
+            watch.daemon = True
+            watch.start()
         cfg = rehearsal_config(world, robot, args.node, str(args.world))
         args.command = "rehearse"
         rc = run_server(cfg, args, shared={"simulator.world": world, COUPLINGS_KEY: [body, scene]})
-        return rc
+        return rc or (1 if failed else 0)
     finally:
         ending.set()
         if child is not None and child.poll() is None:
@@ -310,11 +314,12 @@ def _run(args: argparse.Namespace) -> int:
         tmp.rmdir()
 
 
-def _watch_child(child: subprocess.Popen, ending: threading.Event) -> None:
+def _watch_child(child: subprocess.Popen, ending: threading.Event, failed: list[int]) -> None:
     """When the drivers' server ends by itself, the rehearsal ends too (it has no robot to serve)."""
     rc = child.wait()
     if ending.is_set():
         return
+    failed.append(rc)
     if rc != 0:
         print(f"{PROG}: the drivers' server (rsal serve) exited with code {rc}; see its message above", file=sys.stderr)
     os.kill(os.getpid(), signal.SIGTERM)

@@ -187,14 +187,16 @@ class RehearsalDriver(SimulationDriver):
     """The ``simulation`` driver of a rehearsal: it steps the world in real time and, around every
     step, serves the couplings in ``server.shared[COUPLINGS_KEY]`` (module docstring)."""
 
+    _seen = -1  # the world's step count the couplings last saw
+
     def update(self, now: float) -> None:
         w = self.world
         couplings = self.server.shared.get(COUPLINGS_KEY, ())
         for c in couplings:
             c.before_step(w)
-        steps = w.steps
         super().update(now)
-        if w.steps != steps:
-            dt = (w.steps - steps) * w.spec.interval_sim
+        if w.steps != self._seen:  # stepped here, by rpc/step, or reset
+            dt = max(0, w.steps - self._seen) * w.spec.interval_sim if self._seen >= 0 else 0.0
+            self._seen = w.steps
             for c in couplings:
                 c.after_step(w, dt)

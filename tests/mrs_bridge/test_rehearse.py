@@ -265,16 +265,30 @@ def test_no_serve_prints_the_command_that_serves_the_robot(procs, port, fabric_f
     assert serve.stop() == 0 and p.stop() == 0
 
 
+BAD_WORLD = """\
+include "devices.inc"
+fancypioneer9dx( name "r0" pose [ 0 0 0 0 ] )
+"""
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
         ([str(TESTROOM), "r00"], "no robot named 'r00'; did you mean 'r0'?"),
         (["maps/nowhere.world", "r0"], "maps/nowhere.world: no such world file"),
+        (["{bad}", "r0"], "bad.world:2: unknown model type 'fancypioneer9dx'; did you mean 'fancypioneer2dx'?"),
+        ([str(TESTROOM), "r0", "--robot-config", "deploy/r0-nav.toml"], "needs a p2os and a hokuyo driver block"),
+        ([str(TESTROOM), "r0", "--robot-config", "deploy/pioneer2dx-urg.toml", "--nav", "vfh"], "--nav adds to"),
     ],
 )
-def test_user_errors_are_one_line(procs, argv, message):
+def test_user_errors_are_one_line(procs, tmp_path, argv, message):
+    bad = tmp_path / "bad.world"
+    bad.write_text(BAD_WORLD)
+    for inc in (ROOT / "maps" / "include").iterdir():
+        (tmp_path / inc.name).symlink_to(inc)
+    argv = [a.format(bad=bad) for a in argv]
     p = procs(rsal_cmd("rehearse", *argv, "--listen", "tcp/127.0.0.1:0"))
     wait_until(lambda: not p.alive(), 30, "the command to exit")
-    out = p.output()
-    assert p.p.returncode == 1 and message in out and "Traceback" not in out
-    assert len(out.strip().splitlines()) == 1, out
+    lines = p.output().strip().splitlines()
+    assert p.p.returncode == 1 and lines[-1].startswith("rsal rehearse: ") and message in lines[-1], lines
+    assert all(ln.startswith("[rehearse] ") for ln in lines[:-1]), lines  # progress, then the one error line
