@@ -70,6 +70,32 @@ def test_the_body_moves_in_the_world_and_reports_its_odometry(world):
     world.reset()
 
 
+def test_the_body_reports_bumpers_stall_and_sonars_from_the_world():
+    """r0 with the Pioneer's bumper rings pushed into the test room's east wall (inner face x = 4.8):
+    front bumpers pressed, rear ones not, stalled; its sonar ring as the world reads it."""
+    from dataclasses import replace
+
+    from simulator.loader import load_world
+    from simulator.presets import pioneer_bumper
+    from simulator.world import World
+
+    spec = load_world(TESTROOM)
+    spec.models = [replace(m, bumpers=[pioneer_bumper()]) if m.name == "r0" else m for m in spec.models]
+    w = World(spec)
+    w.set_pose("r0", 4.2, -2.0, 0.0)
+    body = WorldRobot(w, "r0")
+    assert body.sense().front_bumpers == 0 and not any(body.sense().stall)
+    body.drive(0.3, 0.0)
+    for _ in range(60):
+        body.before_step(w)
+        w.step()
+        body.after_step(w, w.spec.interval_sim)
+    s = body.sense()
+    assert s.front_bumpers != 0 and s.rear_bumpers == 0 and s.stall == (True, True)
+    sonar = next(i for i, r in enumerate(w.rangers("r0")) if r.kind == "sonar")
+    assert s.sonars == pytest.approx(w.ranger("r0", sonar).ranges.tolist())
+
+
 def test_a_user_configuration_gets_the_ptys_and_absolute_paths(tmp_path):
     doc = user_config(ROOT / "deploy" / "pioneer2dx-urg.toml", "r0", "/dev/pts/98", "/dev/pts/99")
     by = {d["name"]: d for d in doc["driver"]}
