@@ -277,6 +277,43 @@ def test_the_navigation_stack_drives_the_rehearsed_robot_to_a_goal(rehearsal_nav
     assert np.hypot(*(_truth(sim) - loc[:2])) < 0.3  # localized to the thesis's 0.30 m
 
 
+def test_the_deploy_configuration_serves_the_rehearsed_robot(procs, port, fabric_factory):
+    """deploy/pioneer2dx-urg.toml as written for the real robot, its ports pointed at the emulators:
+    the laser arrives through hokuyo + rangertolaser and reads what the world's own simulated laser
+    on r0 (the same mount, laser240) reads, beam for beam within the URG's field of view."""
+    from mrs_bridge.drivers.simmsgs import ranger_data
+    from simulator.loader import load_world
+    from simulator.world import World
+
+    w = World(load_world(ROOT / "maps" / "floor.world"))
+    w.step()
+    ref = ranger_data(w.ranger("r0", next(i for i, r in enumerate(w.rangers("r0")) if r.kind != "sonar")))
+    ref_angles = ref.angle_min + ref.angle_step * np.arange(len(ref.ranges))
+    deploy = ROOT / "deploy" / "pioneer2dx-urg.toml"
+    p = procs(
+        rsal_cmd(
+            "rehearse", str(ROOT / "maps" / "floor.world"), "r0", "--robot-config", str(deploy),
+            "--listen", f"tcp/127.0.0.1:{port}",
+        )
+    )  # fmt: skip
+    fab = fabric_factory(port)
+    node = fab.node("r0/**")
+    try:
+        node.wait_for("r0/laser/0", timeout=60)
+        node.wait_for("r0/map/0", timeout=30)
+        node.wait_for("r0/gripper/0", timeout=30)
+    except Exception:
+        pytest.fail(f"the rehearsal did not come up:\n{p.output()}")
+    scan = fab.device("r0:laser:0").wait_for_data(20)
+    angles = scan.angle_min + scan.angle_step * np.arange(len(scan.ranges))
+    near = np.abs(angles[:, None] - ref_angles[None, :]).argmin(axis=1)
+    both = (scan.ranges < scan.range_max) & (ref.ranges[near] < scan.range_max)
+    assert both.sum() > 100  # walls around
+    diff = np.abs(scan.ranges[both] - ref.ranges[near][both])
+    assert float(np.median(diff)) < 0.03 and float(np.mean(diff < 0.1)) > 0.9
+    _stop(p)
+
+
 def test_no_serve_prints_the_command_that_serves_the_robot(procs, port, fabric_factory):
     p = procs(rsal_cmd("rehearse", str(TESTROOM), "r0", "--no-serve", "--listen", f"tcp/127.0.0.1:{port}"))
     line = wait_until(
