@@ -1,6 +1,6 @@
 """The ``hokuyo`` driver (SCIP 2.0): the codec against hand-computed frames, and ``rsal serve`` with
-the driver against an emulated URG-04LX / UTM-30LX on a pseudo-terminal (tests/mrs_bridge/
-hokuyo_emulator.py): scans with the sensor's geometry, error readings as range_max, a sensor that
+the driver against an emulated URG-04LX / UTM-30LX on a pseudo-terminal
+(mrs_bridge/emulators/urg.py): scans with the sensor's geometry, error readings as range_max, a sensor that
 goes silent is reported lost and found again without a restart, noise and failed check characters
 are dropped and counted, SIGTERM switches the laser off."""
 
@@ -12,7 +12,6 @@ import signal
 import numpy as np
 import pytest
 from conftest import rsal_cmd, wait_until
-from hokuyo_emulator import HokuyoEmulator
 
 from mrs_bridge.config import ConfigError
 from mrs_bridge.drivers.hokuyo import (
@@ -27,6 +26,7 @@ from mrs_bridge.drivers.hokuyo import (
     parse_fields,
     parse_frame,
 )
+from mrs_bridge.emulators.urg import HokuyoEmulator
 from mrs_bridge.server import make_driver_config
 
 

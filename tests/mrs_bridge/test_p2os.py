@@ -1,6 +1,6 @@
 """The ``p2os`` driver (mrs_bridge/drivers/p2os.py): the P2OS packet codec against hand-computed
 frames, SIP decoding and odometry wrap-around, parameter validation, and the driver in a device
-server on loopback Zenoh talking to a Pioneer emulator on a pseudo-terminal (p2os_emulator.py)."""
+server on loopback Zenoh talking to a Pioneer emulator on a pseudo-terminal (mrs_bridge/emulators/p2os.py)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,6 @@ from pathlib import Path
 import pytest
 from bridge_helpers import LiveServer
 from conftest import ROOT, free_port, wait_until
-from p2os_emulator import PioneerEmulator
 
 from mrs_bridge.config import ConfigError, load_config, parse_config
 from mrs_bridge.driver import DRIVERS
@@ -30,6 +29,7 @@ from mrs_bridge.drivers.p2os import (
     decode_sip,
     packet,
 )
+from mrs_bridge.emulators.p2os import PioneerEmulator
 from rsal.keys import parse_device
 from rsal.msgs import DioCmd, ErrorCode, GripperCmd, RpcError, VelocityCmd
 

@@ -1,14 +1,14 @@
-"""A Pioneer robot on a pseudo-terminal, for testing the ``p2os`` driver without hardware.
+"""An emulated Pioneer robot on a pseudo-terminal: the ``p2os`` driver without hardware.
 
-Written from the manuals, independently of the driver: nothing here is imported from
-``mrs_bridge``. The packet layout is this module's own tables (:data:`SIP_HEAD`, :data:`SIP_TAIL`,
-:data:`GRIP`, :data:`DIGIN`), taken from the "Pioneer 2 / PeopleBot Operations Manual" chapter
-"P2OS", section "Server Information Packets" (standard SIP), the "Pioneer 3 Operations Manual"
-chapter "ARCOS", section "Standard SIP" (BATTERYX10, CHARGESTATE); the gripper's bits, which the
-manuals leave out, as Player's ``p2os`` decodes them (the gripper state byte in the TIMER high byte)
-and ARIA's ``ArGripper`` reads its break beams from DIGIN (read for their meaning, not copied).
-:func:`encode_sip` turns a :class:`SipState` (raw units) into a payload; :func:`frame` frames it
-(header, count, payload, checksum).
+Written from the manuals, independently of the driver: nothing here is imported from the project
+(not the driver, not its codec :mod:`mrs_bridge.hw.p2os`). The packet layout is this module's own
+tables (:data:`SIP_HEAD`, :data:`SIP_TAIL`, :data:`GRIP`, :data:`DIGIN`), taken from the "Pioneer 2
+/ PeopleBot Operations Manual" chapter "P2OS", section "Server Information Packets" (standard SIP),
+the "Pioneer 3 Operations Manual" chapter "ARCOS", section "Standard SIP" (BATTERYX10, CHARGESTATE);
+the gripper's bits, which the manuals leave out, as Player's ``p2os`` decodes them (the gripper
+state byte in the TIMER high byte) and ARIA's ``ArGripper`` reads its break beams from DIGIN (read
+for their meaning, not copied). :func:`encode_sip` turns a :class:`SipState` (raw units) into a
+payload; :func:`frame` frames it (header, count, payload, checksum).
 
 :class:`PioneerEmulator` opens ``os.openpty()``; the driver opens the slave side by its path
 (:attr:`PioneerEmulator.path`) like a serial port. A thread answers the P2OS sync handshake
@@ -19,6 +19,14 @@ standard SIPs at 10 Hz with sonar ranges from a fixed table, a battery voltage, 
 stalls as set by the test, and a gripper whose paddles and lift take ``paddle_time`` and
 ``lift_time`` seconds to move (reported as moving meanwhile) and whose break beams and paddle
 contacts the test sets (:attr:`inner_beam`, :attr:`outer_beam`, :attr:`contacts`).
+
+The robot's body is the emulator's own unicycle by default. Given a ``body`` (:class:`Body`: any
+object with ``drive``, ``gripper`` and ``sense``), the emulator is only the microcontroller: the
+speeds it would drive (zero while the motors are off or the watchdog has fired) go to
+``body.drive(v, w)`` (m/s, rad/s), GRIPPER commands to ``body.gripper(action)``, and every SIP
+reports what ``body.sense()`` returns (:class:`Sensed`: the wheel odometry, wheel speeds, stall,
+bumpers, battery, gripper, break beams and sonar ranges, in SI units). ``rsal rehearse`` passes
+the body of a robot in a simulated world (:mod:`mrs_bridge.rehearse`).
 
 Faults on demand: :attr:`silent` (answer nothing, read nothing), :meth:`inject_garbage` (random
 bytes between packets), :attr:`corrupt` (the next n SIPs with a wrong checksum), :attr:`truncate`
@@ -36,6 +44,7 @@ import threading
 import time
 import tty
 from dataclasses import dataclass, field
+from typing import Protocol
 
 # ---------------------------------------------------------------------------- tables (the manuals)
 #: standard SIP, TYPE .. SONAR COUNT: (name, struct code), little-endian
@@ -138,9 +147,46 @@ def encode_sip(s: SipState) -> bytes:
     return out
 
 
+@dataclass(frozen=True)
+class Sensed:
+    """What a robot's body reports to its microcontroller, in SI units."""
+
+    odom: tuple[float, float, float]  # wheel odometry x, y (m), heading (rad) since power-on
+    vel: tuple[float, float] = (0.0, 0.0)  # forward speed (m/s), turn rate (rad/s) of the wheels
+    stall: tuple[bool, bool] = (False, False)  # left, right wheel
+    front_bumpers: int = 0  # segments pressed, bit i = segment i + 1
+    rear_bumpers: int = 0
+    battery: float = 12.3  # V
+    paddles: str = "open"  # "open" | "closed" | "opening" | "closing"
+    lift: str = "down"  # "up" | "down" | "raising" | "lowering"
+    inner_beam: bool = False  # broken
+    outer_beam: bool = False
+    contacts: tuple[bool, bool] = (False, False)  # left, right paddle touching
+    sonars: tuple[float, ...] | None = None  # m per transducer; None: the emulator's fixed table
+
+
+class Body(Protocol):
+    """The robot's mechanics as the emulated microcontroller sees them (module docstring)."""
+
+    def drive(self, v: float, w: float) -> None: ...
+
+    def gripper(self, action: str) -> None: ...
+
+    def sense(self) -> Sensed: ...
+
+
 class PioneerEmulator:
-    def __init__(self, subclass: str = "P2DX", name: str = "emu", sonars: int = 8, rate: float = 10.0):
+    def __init__(
+        self,
+        subclass: str = "P2DX",
+        name: str = "emu",
+        sonars: int = 8,
+        rate: float = 10.0,
+        body: Body | None = None,
+    ):
         self.subclass, self.name, self.n_sonars, self.period = subclass, name, sonars, 1.0 / rate
+        self.body = body
+        self._driven: tuple[float, float] | None = None  # what body.drive was last told
         self.subclass_announced = subclass  # what SYNC2 answers (a test may make it unknown)
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
@@ -298,7 +344,11 @@ class PioneerEmulator:
             mask, bits = arg >> 8, arg & 0xFF
             self.digout = (self.digout & ~mask) | (bits & mask)
         elif cmd == CMD["GRIPPER"]:
-            self._grip_command(GRIPPER_ARG.get(arg or 0, ""), now)
+            what = GRIPPER_ARG.get(arg or 0, "")
+            if self.body is not None and what:
+                self.body.gripper(what)
+            else:
+                self._grip_command(what, now)
 
     def _grip_command(self, what: str, now: float) -> None:
         if what == "open" and self.paddles != "open":
@@ -346,37 +396,69 @@ class PioneerEmulator:
     def _integrate(self, dt: float, now: float) -> None:
         if now - self._last_cmd > 2.0:  # watchdog: no command (not even PULSE) for 2 s
             self.v = self.w = 0.0
+        if self.body is not None:  # the body moves; tell it only what changed
+            on = self.open and self.motors
+            want = (self.v / 1000.0, math.radians(self.w)) if on else (0.0, 0.0)
+            if want != self._driven:
+                self.body.drive(*want)
+                self._driven = want
+            return
         if not (self.open and self.motors):
             return
         self.th += math.radians(self.w) * dt
         self.x += self.v * math.cos(self.th) * dt
         self.y += self.v * math.sin(self.th) * dt
 
-    def sip_state(self) -> SipState:
-        """The robot's state as SIP fields (raw units)."""
-        dc = DIST_CONV[self.subclass]
-        x0, y0, t0 = self.start_counts
-        wr = math.radians(self.w) if self.motors else 0.0
-        v = self.v if self.motors else 0.0
-        half = wr / DIFF_CONV[self.subclass]
-        return SipState(
-            xpos=(x0 + round(self.x / dc)) & 0x7FFF,
-            ypos=(y0 + round(self.y / dc)) & 0x7FFF,
-            thpos=(t0 + round(self.th / ANGLE_CONV)) & 0xFFF,
-            l_vel=round(v - half),
-            r_vel=round(v + half),
-            battery=round(self.battery * 10),
-            stall_left=self.stall[0],
-            stall_right=self.stall[1],
+    def sensed(self) -> Sensed:
+        """What the body reports: ``body.sense()``, or the emulator's own unicycle and settings."""
+        if self.body is not None:
+            return self.body.sense()
+        on = self.motors
+        return Sensed(
+            odom=(self.x / 1000.0, self.y / 1000.0, self.th),
+            vel=(self.v / 1000.0 if on else 0.0, math.radians(self.w) if on else 0.0),
+            stall=self.stall,
             front_bumpers=self.front_bumpers,
             rear_bumpers=self.rear_bumpers,
+            battery=self.battery,
+            paddles=self.paddles,
+            lift=self.lift,
+            inner_beam=self.inner_beam,
+            outer_beam=self.outer_beam,
+            contacts=self.contacts,
+            sonars=tuple(self.sonar_table),
+        )
+
+    def sip_state(self) -> SipState:
+        """The robot's state as SIP fields (raw units)."""
+        s = self.sensed()
+        if self.body is not None:  # the gripper's state comes from the body
+            self.paddles, self.lift = s.paddles, s.lift
+            self.inner_beam, self.outer_beam, self.contacts = s.inner_beam, s.outer_beam, s.contacts
+        dc = DIST_CONV[self.subclass]
+        x0, y0, t0 = self.start_counts
+        x, y, th = s.odom
+        v = s.vel[0] * 1000.0  # mm/s
+        half = s.vel[1] / DIFF_CONV[self.subclass]
+        sonars = s.sonars if s.sonars is not None else self.sonar_table
+        return SipState(
+            xpos=(x0 + round(x * 1000.0 / dc)) & 0x7FFF,
+            ypos=(y0 + round(y * 1000.0 / dc)) & 0x7FFF,
+            thpos=(t0 + round(th / ANGLE_CONV)) & 0xFFF,
+            l_vel=round(v - half),
+            r_vel=round(v + half),
+            battery=round(s.battery * 10),
+            stall_left=s.stall[0],
+            stall_right=s.stall[1],
+            front_bumpers=s.front_bumpers,
+            rear_bumpers=s.rear_bumpers,
             flags=(1 if self.motors else 0) | (0b10 if self.sonar_on else 0),
-            sonars=[(i, round(r * 1000)) for i, r in enumerate(self.sonar_table)] if self.sonar_on else [],
+            sonars=[(i, round(r * 1000)) for i, r in enumerate(sonars)] if self.sonar_on else [],
             grip=self.grip_byte(),
             analog=128,
             digin=self.digin_byte(),
             digout=self.digout,
-            battery_x10=round(self.battery * 10),
+            battery_x10=round(s.battery * 10),
             charge_state=self.charge_state,
         )
 

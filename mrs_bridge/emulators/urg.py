@@ -1,7 +1,8 @@
 """An emulated Hokuyo laser (URG-04LX or UTM-30LX) speaking SCIP 2.0 on a pseudo-terminal.
 
 Written from Hokuyo's "URG Series Communication Protocol Specification SCIP 2.0", independently of
-the driver: nothing here is imported from ``mrs_bridge``. This module's own tables and encoders:
+the driver: nothing here is imported from the project (not the driver, not its codec
+:mod:`mrs_bridge.hw.scip`). This module's own tables and encoders:
 the line framing and check character (:func:`check_char`, :func:`line`), the 2/3/4-character
 coding (:func:`encode`), the sensors' ``PP`` values from their data sheets (:data:`SENSORS`), and
 the status codes it answers (:data:`STATUS`). :func:`answer` frames one reply block, :func:`scan_block`
@@ -12,8 +13,12 @@ the emulator answers on the master side from its own thread: ``SCIP2.0``, ``VV``
 ``BM``, ``QT``, ``RS``, ``GD`` and ``MD`` (scans at the model's rate), anything else with the
 "undefined command" status ``0E``. ``MD`` honours its scan interval (scans skipped between two
 sent) and its number of scans (the echo's last two digits count down the scans left; ``00``:
-endless). The scene is a round room: every reading is ``room_mm`` except
-step ``amin + 10``, which answers the error code 1 (no echo). Faults on demand: ``mode =
+endless). The default scene is a round room: every reading is ``room_mm`` except
+step ``amin + 10``, which answers the error code 1 (no echo). Given ``scene``, a callable taking
+the requested step numbers (an int array) and returning one reading per step in mm (or an error
+code below ``DMIN``), the ranges come from it instead: ``rsal rehearse`` ray-casts them in a
+simulated world at the sensor's pose (:mod:`mrs_bridge.rehearse`); :meth:`Sensor.angle` gives a
+step's direction. Faults on demand: ``mode =
 "silent"`` (reads and never answers), ``"garbage"`` (noise bytes between scans), ``"badsum"`` (every
 other scan with a wrong check character). ``commands`` records every command line received.
 """
@@ -44,6 +49,11 @@ class Sensor:
     amax: int
     afrt: int
     scan: int
+
+    def angle(self, steps):
+        """The direction of step(s) in radians, counter-clockwise from the front: step ``AFRT``
+        looks ahead, one step is a ``1/ARES`` of a turn (SCIP 2.0, the ``PP`` parameters)."""
+        return (np.asarray(steps, dtype=np.float64) - self.afrt) * (2.0 * np.pi / self.ares)
 
 
 #: the sensors of the thesis (A.2), from their data sheets
@@ -106,9 +116,10 @@ def scan_block(stamp_ms: int, ranges_mm, chars: int = 3) -> bytes:
 
 
 class HokuyoEmulator:
-    def __init__(self, model: str = "URG-04LX", room_mm: int = 2000):
+    def __init__(self, model: str = "URG-04LX", room_mm: int = 2000, scene=None):
         self.pp = SENSORS[model]
         self.room_mm = room_mm
+        self.scene = scene
         self.master, self.slave = os.openpty()
         self.path = os.ttyname(self.slave)
         self.mode = "normal"
@@ -126,8 +137,11 @@ class HokuyoEmulator:
     # -- the scene
     def readings(self, start: int, end: int, cluster: int) -> np.ndarray:
         steps = np.arange(start, end + 1)
-        mm = np.full(steps.size, self.room_mm, dtype=np.int64)
-        mm[steps == self.pp.amin + 10] = 1  # an error code: no echo
+        if self.scene is not None:
+            mm = np.asarray(self.scene(steps), dtype=np.int64)
+        else:
+            mm = np.full(steps.size, self.room_mm, dtype=np.int64)
+            mm[steps == self.pp.amin + 10] = 1  # an error code: no echo
         n = (end - start) // cluster + 1
         if cluster > 1:  # a cluster reports the minimum of its steps (the last may be short)
             mm = np.minimum.reduceat(mm, np.arange(0, steps.size, cluster))[:n]
