@@ -25,6 +25,7 @@ category, the class also derives from it, so ``except ValueError`` still works::
     ├── MapError (ValueError)                   rsal.mapping.cli: a bad ``rsal map`` argument
     ├── MapInputError (ValueError)              rsal.mapping.reader: a recording no map can be built from
     ├── TourError (ValueError)                  rsal.mapping.tour: a tour that cannot be made
+    ├── RehearseError                           mrs_bridge.rehearse: a rehearsal that cannot start
     ├── WireError (ValueError)                  mrs_bridge.ros2.wire: a key, attachment or token not in rmw_zenoh's form
     └── _Failure                                agents.demo: the demo cannot go on (private)
 

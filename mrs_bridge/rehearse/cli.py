@@ -27,6 +27,7 @@ import tomllib
 from pathlib import Path
 
 from rsal.cliutil import positive
+from rsal.errors import RsalError
 from rsal.keys import DeviceAddr, parse_device
 from rsal.suggest import did_you_mean
 from rsal.transport import DEFAULT_ENDPOINT, add_transport_args, free_port, port_free
@@ -44,7 +45,7 @@ def say(msg: str) -> None:
     print(f"[rehearse] {msg}", flush=True)
 
 
-class RehearseError(Exception):
+class RehearseError(RsalError):
     """A user error: one line, exit 1."""
 
 
