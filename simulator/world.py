@@ -52,7 +52,16 @@ from .sensors.gripper import GripperState
 from .sensors.ranger import SONAR_SUBRAYS, RangerReading
 from .spec import ModelSpec, RangerSpec, WorldSpec
 
-__all__ = ["World", "BatteryState", "RangerReading", "Blob", "BumperReading", "Fiducial", "GripperState", "SONAR_SUBRAYS"]
+__all__ = [
+    "World",
+    "BatteryState",
+    "RangerReading",
+    "Blob",
+    "BumperReading",
+    "Fiducial",
+    "GripperState",
+    "SONAR_SUBRAYS",
+]
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +83,22 @@ class World:
             fp = spec.floorplan
             self.grid = GridMap.from_floorplan(fp, spec.resolution)
         self.bounds = self._bounds()
+        self._check_chargers()
         self._build()
+
+    def _check_chargers(self) -> None:
+        """A charger must stand on the floorplan (anywhere, without one)."""
+        if self.grid is None:
+            return
+        x0, x1, y0, y1 = self.grid.extent
+        for c in self.spec.chargers:
+            x, y = c.pose[0], c.pose[1]
+            if not (x0 <= x <= x1 and y0 <= y <= y1):
+                at = f"{c.source}: " if c.source else ""
+                raise ModelError(
+                    f"{at}charger {c.name!r} at ({x:g}, {y:g}) is outside the map; put it within "
+                    f"x [{x0:g}, {x1:g}] and y [{y0:g}, {y1:g}] m"
+                )
 
     def _bounds(self) -> tuple[float, float, float, float]:
         """``(xmin, xmax, ymin, ymax)``: the floorplan and every model's initial pose, grown by
