@@ -13,6 +13,7 @@ from typing import Any
 
 from rsal.interfaces.bumper import BumperData, BumperGeometry, BumperSegment
 from rsal.interfaces.fiducial import FiducialData, FiducialGeometry, FiducialItem
+from rsal.interfaces.power import lead_acid_volts
 from rsal.msgs import BlobData, BlobfinderData, GripperData, PowerData, RangerData
 
 __all__ = [
@@ -76,13 +77,15 @@ def fiducial_data(t: float, seen) -> FiducialData:
 
 
 def battery_volts(percent: float) -> float:
-    """The simulated battery's voltage at ``percent`` charge: 10.5 V empty to 13 V full."""
-    return 10.5 + 2.5 * percent / 100.0
+    """The simulated battery's voltage at ``percent`` charge: the lead-acid curve of
+    :func:`rsal.interfaces.power.lead_acid_volts`, 10.5 V empty to 13 V full."""
+    return lead_acid_volts(percent / 100.0)
 
 
-def power_data(t: float, percent: float) -> PowerData:
-    """The simulated battery at ``percent`` charge."""
-    return PowerData(t, battery_volts(percent), percent)
+def power_data(t: float, percent: float, charging: bool = False, low: bool = False) -> PowerData:
+    """The simulated battery at ``percent`` charge (a :class:`simulator.energy.BatteryState`'s
+    ``fraction`` times 100)."""
+    return PowerData(t, battery_volts(percent), min(100.0, max(0.0, percent)), bool(charging), bool(low))
 
 
 # ---------------------------------------------------------------------------------- geometry
