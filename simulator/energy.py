@@ -139,13 +139,15 @@ class Batteries:
         if self._crate.size:
             dx = pose[:, 0, None] - self._cpose[None, :, 0]
             dy = pose[:, 1, None] - self._cpose[None, :, 1]
-            ok = dx * dx + dy * dy <= self._cdist2[None, :]
-            ok &= np.abs(wrap(pose[:, 2, None] - self._cpose[None, :, 2])) <= self._cangle[None, :]
-            rate = np.where(ok, self._crate[None, :], -1.0)
-            best = rate.argmax(axis=1)
-            docked = ok.any(axis=1)
-            self.dock[docked] = best[docked]
-            gain = np.where(docked, np.minimum(rate[np.arange(len(best)), best], self.max_charge), 0.0) * dt
+            r, c = np.nonzero(dx * dx + dy * dy <= self._cdist2[None, :])  # the few pairs in reach
+            if r.size:
+                facing = np.abs(wrap(pose[r, 2] - self._cpose[c, 2])) <= self._cangle[c]
+                r, c = r[facing], c[facing]
+                rate = self._crate[c]
+                order = np.argsort(rate, kind="stable")  # the fastest charger wins: written last
+                self.dock[r[order]] = c[order]
+                docked = self.dock >= 0
+                gain[docked] = np.minimum(self._crate[self.dock[docked]], self.max_charge[docked]) * dt
         before = self.energy
         self.energy = np.where(self.has, np.clip(before - used + gain, 0.0, self.capacity), self.capacity)
         self.charging = self.has & (self.dock >= 0) & (gain > used) & (self.energy < self.capacity)

@@ -159,6 +159,7 @@ class SimulationDriver(Driver):
         return {
             "interval_sim": self.world.spec.interval_sim,
             "speedup": self.speedup if math.isfinite(self.speedup) else 0,
+            "chargers": [simmsgs.charger_geometry(c) for c in self.world.spec.chargers],
         }
 
     def on_rpc(self, addr, op, args):

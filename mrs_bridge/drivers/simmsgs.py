@@ -22,6 +22,7 @@ __all__ = [
     "blobfinder_geometry",
     "bumper_data",
     "bumper_geometry",
+    "charger_geometry",
     "fiducial_data",
     "fiducial_geometry",
     "gripper_data",
@@ -89,6 +90,13 @@ def power_data(t: float, percent: float, charging: bool = False, low: bool = Fal
 
 
 # ---------------------------------------------------------------------------------- geometry
+def charger_geometry(c) -> dict[str, Any]:
+    """A :class:`simulator.spec.ChargerSpec` as an entry of the simulation's ``describe``
+    ``chargers``: ``name``, ``pose`` [x, y, yaw], ``rate`` W, ``distance`` m, ``angle`` rad (nil:
+    any heading docks)."""
+    return {"name": c.name, "pose": list(c.pose), "rate": c.rate, "distance": c.distance, "angle": c.angle}
+
+
 def ranger_geometry(r) -> dict[str, Any]:
     """A :class:`simulator.spec.RangerSpec` as the ranger's ``describe`` geometry."""
     sensors = [

@@ -50,6 +50,8 @@ def test_power_data_low_event_empty_stop_and_charging(procs, port, fabric_factor
     assert p1.low and not p1.charging  # 10 %: below the threshold from the start
 
     sim = fab.device("sim:simulation:0")
+    (dock,) = sim.describe().geometry["chargers"]
+    assert dock == {"name": "dock", "pose": [0.5, 3.0, 0.0], "rate": 2.0, "distance": 0.1, "angle": None}
     pos0, pos1 = fab.device("r0:position2d:0"), fab.device("r1:position2d:0")
     pos0.wait_for_data(10)
     pos1.wait_for_data(10)
