@@ -13,6 +13,15 @@ caster's time for that tick is reported as a ratio against it. The C++ Stage fig
 machine kind (measured: 100 robots 2.7x, 300 0.9x, 1000 0.21x real time) are printed beside ours
 as ``vs_stage``.
 
+Energy (:mod:`simulator.energy`): every robot carries the Pioneer battery and the arena has 20
+chargers. Baseline in the same run: the same world and seed stepped again with the energy model
+switched off (no battery drains, no charger docks, the batteries' step a no-op), reported as
+``energy_ratio`` = speed with energy / without (1.0: no cost; the median over pairs of one-second
+slices, the two worlds stepped alternately for ``--sim-seconds`` each, so load spikes on a shared
+machine fall on both alike), beside the totals ``rtf_energy_on`` and ``rtf_energy_off``; and the
+energy model's own step alone, ``energy_us_per_step`` (all robots and chargers), against the whole
+step, ``energy_share``.
+
 Output: one parseable line per figure, ``bench=simulator key=value ...``.
 Usage: ``python benchmarks/bench_simulator.py [--robots 10,100,300,1000] [--sim-seconds 60]``
 """
@@ -37,7 +46,7 @@ def build_world(n: int, seed: int):
     import numpy as np
 
     from simulator.presets import urg04lx
-    from simulator.spec import FloorplanSpec, ModelSpec, WorldSpec
+    from simulator.spec import ChargerSpec, FloorplanSpec, ModelSpec, WorldSpec
     from simulator.world import World
 
     fp = FloorplanSpec(bitmap=ROOT / "maps" / "arena.png", resolution=0.1, origin=(-64.0, -64.0))
@@ -67,7 +76,14 @@ def build_world(n: int, seed: int):
         )
         for i, p in enumerate(poses)
     ]
-    return World(WorldSpec(floorplan=fp, models=models, interval_sim=0.1, seed=seed), seed=seed)
+    chargers = [ChargerSpec(f"dock{i}", poses[i % n]) for i in range(20)] if n else []
+    return World(WorldSpec(floorplan=fp, models=models, chargers=chargers, interval_sim=0.1, seed=seed), seed=seed)
+
+
+def energy_off(world) -> None:
+    """The baseline: no robot has a battery model and the batteries' step does nothing."""
+    world.batteries.has[:] = False
+    world.batteries.step = lambda prev, pose, dt: None
 
 
 def child(n: int, sim_seconds: float, seed: int) -> dict:
@@ -107,9 +123,37 @@ def child(n: int, sim_seconds: float, seed: int) -> dict:
     cast_fans_numpy(world.grid, fsub, circles)
     numpy_tick = (time.perf_counter() - t) * n / sub
 
+    # The energy model's step alone, on this step's poses.
+    b, prev, pose = world.batteries, world.poses.copy(), world.bodies.robot_poses()
+    k = 200
+    t = time.perf_counter()
+    for _ in range(k):
+        b.step(prev, pose, 0.1)
+        _ = b.empty
+    energy_step = (time.perf_counter() - t) / k
+
     scans0 = world.steps
     stats = run(world, sim_seconds, on_step=wander)
     scans = (world.steps - scans0) * n
+    # With and without energy: two worlds of the same seed stepped in alternating one-second
+    # slices (whichever goes first alternates too), so the machine's load falls on both alike.
+    w_on, w_off = build_world(n, seed), build_world(n, seed)
+    energy_off(w_off)
+    wall = {True: 0.0, False: 0.0}
+    sims = {True: 0.0, False: 0.0}
+    ratios = []  # per slice pair: wall time without energy / with
+    for w in (w_on, w_off):
+        w.step()
+        wander(w)
+    for i in range(max(1, int(sim_seconds))):
+        pair = {}
+        for on in (True, False) if i % 2 else (False, True):
+            st = run(w_on if on else w_off, 1.0, on_step=wander)
+            wall[on] += st.wall_seconds
+            sims[on] += st.sim_seconds
+            pair[on] = st.wall_seconds
+        ratios.append(pair[False] / pair[True])
+    rtf_on, rtf_off = sims[True] / wall[True], sims[False] / wall[False]
     peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return {
         "robots": n,
@@ -122,6 +166,11 @@ def child(n: int, sim_seconds: float, seed: int) -> dict:
         "caster_tick_ms": round(jit_tick * 1000, 3),
         "numpy_tick_ms": round(numpy_tick * 1000, 1),
         "caster_speedup_vs_numpy": round(numpy_tick / jit_tick, 1),
+        "rtf_energy_on": round(rtf_on, 3),
+        "rtf_energy_off": round(rtf_off, 3),
+        "energy_ratio": round(float(np.median(ratios)), 3),
+        "energy_us_per_step": round(energy_step * 1e6, 1),
+        "energy_share": round(energy_step / (stats.wall_seconds / max(1, world.steps - scans0)), 4),
     }
 
 

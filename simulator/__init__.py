@@ -2,14 +2,17 @@
 
 A library with no dependency on the rest of the project: bitmap floorplans, pymunk bodies for
 robots and objects, differential-drive position models with drifting odometry, laser and sonar
-rangers, blobfinders and grippers computed for all robots in one vectorised pass per tick, a
+rangers, blobfinders and grippers computed for all robots in one vectorised pass per tick,
+batteries that drain with motion and charge at chargers (:mod:`simulator.energy`), a
 fixed-step clock, and loaders for Stage ``.world`` files and a YAML world format.
 """
 
 from .errors import ModelError, OutOfWorld, SimulatorError, WorldFileError
 from .loader import load_world
 from .spec import (
+    BatterySpec,
     BlobfinderSpec,
+    ChargerSpec,
     FloorplanSpec,
     GripperSpec,
     ModelSpec,
@@ -19,7 +22,9 @@ from .spec import (
 )
 
 __all__ = [
+    "BatterySpec",
     "BlobfinderSpec",
+    "ChargerSpec",
     "FloorplanSpec",
     "GripperSpec",
     "ModelError",

@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
+from .energy import PIONEER_AT, PIONEER_DX
 from .spec import (
     BlobfinderSpec,
     BumperSegmentSpec,
@@ -216,7 +218,8 @@ def fiducial_finder(
 
 
 def pioneer2dx(name: str, pose: Sequence[float] = (0.0, 0.0, 0.0), *, color: Color = "red") -> ModelSpec:
-    """A Pioneer 2DX base: 0.44 x 0.38 x 0.22 m, 23 kg, 1.0 m/s and 100 deg/s, 8 sonars."""
+    """A Pioneer 2DX base: 0.44 x 0.38 x 0.22 m, 23 kg, 1.0 m/s and 100 deg/s, 8 sonars,
+    three 12 V 7.2 Ah batteries (:data:`simulator.energy.PIONEER_DX`)."""
     return ModelSpec(
         name=name,
         type_name="pioneer2dx",
@@ -227,12 +230,14 @@ def pioneer2dx(name: str, pose: Sequence[float] = (0.0, 0.0, 0.0), *, color: Col
         mass=23.0,
         max_speed=(1.0, math.radians(100.0)),
         rangers=[pioneer2dx_sonar()],
+        battery=replace(PIONEER_DX),
     )
 
 
 def pioneer3at(name: str, pose: Sequence[float] = (0.0, 0.0, 0.0), *, color: Color = "red") -> ModelSpec:
     """A Pioneer 3AT base (skid steer, simulated as a differential drive): 0.626 x 0.505 x 0.277 m,
-    30 kg, 0.7 m/s and 140 deg/s, 16 sonars."""
+    30 kg, 0.7 m/s and 140 deg/s, 16 sonars, three 12 V 7.2 Ah batteries
+    (:data:`simulator.energy.PIONEER_AT`)."""
     return ModelSpec(
         name=name,
         type_name="pioneer3at",
@@ -243,6 +248,7 @@ def pioneer3at(name: str, pose: Sequence[float] = (0.0, 0.0, 0.0), *, color: Col
         mass=30.0,
         max_speed=(0.7, math.radians(140.0)),
         rangers=[pioneer3at_sonar()],
+        battery=replace(PIONEER_AT),
     )
 
 

@@ -18,7 +18,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 __all__ = [
+    "BatterySpec",
     "BlobfinderSpec",
+    "ChargerSpec",
     "BumperSegmentSpec",
     "BumperSpec",
     "FiducialSpec",
@@ -129,6 +131,36 @@ class FiducialSpec:
 
 
 @dataclass
+class BatterySpec:
+    """A robot's battery and what drains it (:mod:`simulator.energy`): ``capacity`` joules when
+    full, ``charge`` the fraction it starts with, ``per_metre`` joules per metre driven,
+    ``per_radian`` joules per radian turned, ``watts`` the constant draw of electronics and
+    sensors, ``max_charge`` the most watts it takes from a charger (0: whatever the charger gives).
+    The defaults are a Pioneer 2DX/3DX's (:data:`simulator.energy.PIONEER_DX`)."""
+
+    capacity: float = 3 * 12.0 * 7.2 * 3600.0  # J: three 12 V 7.2 Ah lead-acid batteries
+    charge: float = 1.0  # fraction of capacity at start
+    per_metre: float = 20.0  # J/m
+    per_radian: float = 4.0  # J/rad
+    watts: float = 20.0  # W, constant
+    max_charge: float = 0.0  # W, 0: no limit of its own
+
+
+@dataclass
+class ChargerSpec:
+    """A charging station (our extension of Stage): a robot whose centre is within ``distance``
+    metres of ``pose`` (and, when ``angle`` is set, whose heading is within ``angle`` radians of
+    the pose's yaw) is docked and charges at ``rate`` watts. Not a body: robots drive onto it."""
+
+    name: str
+    pose: Pose = (0.0, 0.0, 0.0)
+    rate: float = 100.0  # W
+    distance: float = 0.3  # m
+    angle: float | None = None  # rad; None: any heading docks
+    source: str = ""
+
+
+@dataclass
 class ModelSpec:
     """A body in the world: a robot when ``position`` is true, otherwise a passive object."""
 
@@ -164,6 +196,7 @@ class ModelSpec:
     # one ``size`` box. The body's pose is the model's pose; only the shape is offset.
     blocks: list[tuple[tuple[float, float], ...]] = field(default_factory=list)
     origin: Pose = (0.0, 0.0, 0.0)
+    battery: BatterySpec | None = field(default_factory=BatterySpec)  # robots only; None: no battery model
     localization: str = "odom"  # what position2d reports: "odom" (odometry) or "gps" (ground truth)
     ctrl: str | None = None  # built-in controller (Stage ``ctrl``), e.g. "wander"; robots only
     source: str = ""  # "file:line" where it was declared, for messages
@@ -198,6 +231,7 @@ class WorldSpec:
 
     floorplan: FloorplanSpec | None = None
     models: list[ModelSpec] = field(default_factory=list)
+    chargers: list[ChargerSpec] = field(default_factory=list)
     interval_sim: float = 0.1  # s per simulation step (Stage ``interval_sim``, in ms in files)
     speedup: float = 1.0  # real-time factor when paced; <= 0 or inf means as fast as possible
     seed: int = 0

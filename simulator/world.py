@@ -39,6 +39,7 @@ import numpy as np
 from .bodies import Bodies
 from .controllers import StageControllers
 from .drive import Drives
+from .energy import Batteries, BatteryState
 from .errors import ModelError, OutOfWorld, SimulatorError
 from .gridmap import GridMap
 from .raycast import CircleIndex
@@ -51,7 +52,16 @@ from .sensors.gripper import GripperState
 from .sensors.ranger import SONAR_SUBRAYS, RangerReading
 from .spec import ModelSpec, RangerSpec, WorldSpec
 
-__all__ = ["World", "RangerReading", "Blob", "BumperReading", "Fiducial", "GripperState", "SONAR_SUBRAYS"]
+__all__ = [
+    "World",
+    "BatteryState",
+    "RangerReading",
+    "Blob",
+    "BumperReading",
+    "Fiducial",
+    "GripperState",
+    "SONAR_SUBRAYS",
+]
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +83,22 @@ class World:
             fp = spec.floorplan
             self.grid = GridMap.from_floorplan(fp, spec.resolution)
         self.bounds = self._bounds()
+        self._check_chargers()
         self._build()
+
+    def _check_chargers(self) -> None:
+        """A charger must stand on the floorplan (anywhere, without one)."""
+        if self.grid is None:
+            return
+        x0, x1, y0, y1 = self.grid.extent
+        for c in self.spec.chargers:
+            x, y = c.pose[0], c.pose[1]
+            if not (x0 <= x <= x1 and y0 <= y <= y1):
+                at = f"{c.source}: " if c.source else ""
+                raise ModelError(
+                    f"{at}charger {c.name!r} at ({x:g}, {y:g}) is outside the map; put it within "
+                    f"x [{x0:g}, {x1:g}] and y [{y0:g}, {y1:g}] m"
+                )
 
     def _bounds(self) -> tuple[float, float, float, float]:
         """``(xmin, xmax, ymin, ymax)``: the floorplan and every model's initial pose, grown by
@@ -103,6 +128,7 @@ class World:
         self.space = self.bodies.space
         self.sensors: dict[str, Sensor] = {cls.kind: cls(self) for cls in SENSOR_TYPES}
         self.drives = Drives()
+        self.batteries = Batteries(self.spec.chargers)
         for m in self.spec.models:
             self._add(m)
         self.controllers = StageControllers(self.spec.models, self.seed)
@@ -116,6 +142,7 @@ class World:
             limits = (*spec.max_speed, *spec.max_accel)
             b = model.body
             self.drives.add((x, y, a), limits, bias, np.asarray(spec.odom_noise, dtype=float), b.mass, b.moment)
+            self.batteries.add(spec.battery)
             for sensor in self.sensors.values():
                 sensor.add(model)
         self._models_changed()
@@ -213,6 +240,7 @@ class World:
             sensor.remove(m)
         if m.row >= 0:
             self.drives.remove(m.row)
+            self.batteries.remove(m.row)
         self.bodies.remove(m)
         self._models_changed()
 
@@ -271,6 +299,17 @@ class World:
         """True when the robot is commanded to move but is blocked (Player's ``stall``)."""
         return bool(self.drives.stall[self._robot(name).row])
 
+    # ------------------------------------------------------------------ energy
+    def battery(self, name: str) -> BatteryState:
+        """A robot's battery after the last step (:mod:`simulator.energy`)."""
+        return self.batteries.state(self._robot(name).row)
+
+    def set_battery(self, name: str, fraction: float) -> None:
+        """Set a robot's charge to ``fraction`` of its capacity (0..1)."""
+        if not math.isfinite(fraction):
+            raise ModelError(f"set_battery({name!r}): fraction {fraction!r} must be a number between 0 and 1")
+        self.batteries.set_fraction(self._robot(name).row, fraction)
+
     # ------------------------------------------------------------------ sensors (delegating)
     def ranger(self, name: str, index: int = 0) -> RangerReading | None:
         """The latest scan of a robot's ranger ``index`` (None before the first one)."""
@@ -328,6 +367,10 @@ class World:
         dt = self.spec.interval_sim
         n = len(self.bodies.robots)
         if n:
+            empty = self.batteries.empty  # an empty battery refuses to move (energy.py)
+            if empty.any():
+                self.drives.cmd[empty] = 0.0
+                self.drives.vel[empty] = 0.0
             self.drives.accelerate(dt)  # 1. acceleration-limited velocity towards the command
         # 2. physics.
         h = dt / self.substeps
@@ -338,7 +381,10 @@ class World:
         self.time = (self.steps + 1) * dt
         self.steps += 1
         if n:
-            self.drives.odometry(self.bodies.robot_poses(), dt, self.rng)  # 3.
+            prev = self.drives.prev
+            pose = self.bodies.robot_poses()
+            self.drives.odometry(pose, dt, self.rng)  # 3.
+            self.batteries.step(prev, pose, dt)  # 3b. energy: drain by the true motion, charge when docked
         self.bodies.moved()
         # 4. sensors (and the grippers' actuators), in the order of SENSOR_TYPES.
         for sensor in self.sensors.values():

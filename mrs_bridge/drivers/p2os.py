@@ -35,6 +35,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from rsal.interfaces.power import lead_acid_fraction
 from rsal.msgs import (
     ActArrayData,
     DioCmd,
@@ -55,6 +56,7 @@ from rsal.msgs import (
 )
 
 from ..baseguard import ESTOP_OPS, BaseGuard
+from ..battery import DEFAULT_LOW_BATTERY, LowBattery
 from ..config import ConfigError
 from ..driver import Driver, OutOfRange, register
 from ..hw.p2os import (
@@ -127,10 +129,10 @@ class P2osParams:
     timeout: float = param(1.0, min=0.2, max=30.0, unit="seconds")
     sonars: Literal[8, 16] | None = param(None, expect="8 or 16 (transducers fitted)")
     cmd_timeout: Any = param(None, doc="s, read by the base guard (mrs_bridge.baseguard)")
+    low_battery: float = param(DEFAULT_LOW_BATTERY, min=0.0, max=100.0, doc="% below which power:0 reports low")
 
 
 WARN_INTERVAL = 5.0
-POWER_EMPTY, POWER_FULL = 10.5, 13.0  # V: 0 % and 100 % of a 12 V lead-acid pack
 
 
 @register("p2os")
@@ -161,6 +163,7 @@ class P2osDriver(Driver):
         self.pulse, self.reconnect, self.timeout = p.pulse, p.reconnect, p.timeout
         self.forced_model = MODELS[p.model] if p.model is not None else None
         self.sonar_override = p.sonars
+        self.low = LowBattery(p.low_battery)
         for a in cfg.provides:
             if a.index != 0:
                 raise ConfigError(
@@ -385,8 +388,11 @@ class P2osDriver(Driver):
                     self.publish(a, RangerData(t, self.sonar_ranges.copy(), 0.0, 0.0, *m.sonar_range))
             elif iface == "power":
                 volts = sip.volts
-                pct = min(100.0, max(0.0, 100.0 * (volts - POWER_EMPTY) / (POWER_FULL - POWER_EMPTY)))
-                self.publish(a, PowerData(t, volts, pct, bool(sip.charge_state)))
+                pct = 100.0 * lead_acid_fraction(volts)  # the charge from the voltage, as the simulator's curve
+                ev = self.low.update(t, pct, volts)
+                self.publish(a, PowerData(t, volts, pct, bool(sip.charge_state), self.low.low))
+                if ev is not None:
+                    self.event(a, ev)
             elif iface == "gripper" and sip.gripper is not None:
                 self.publish(a, self._gripper_msg(t, sip))
             elif iface == "dio" and sip.digin is not None:

@@ -9,7 +9,9 @@
 - ``sim`` (alias ``stage``) binds one robot model (``model``) and provides its ``position2d``
   (odometry pose, or ground truth with ``localization = "gps"``), ``ranger:i`` (the model's i-th
   ranger), ``sonar`` and ``laser`` (its first sonar / laser ranger), ``blobfinder``, ``gripper``,
-  ``bumper``, ``fiducial`` and ``power`` (a simulated battery); which of them a robot has comes
+  ``bumper``, ``fiducial`` and ``power`` (the robot's battery in the simulator's energy model,
+  :mod:`simulator.energy`: voltage, charge, charging, and the low-battery event of
+  :mod:`mrs_bridge.battery` below ``low_battery`` percent); which of them a robot has comes
   from its world model (:func:`robot_devices`, from the simulator's sensor plug-ins). Its
   ``position2d`` stops the robot when velocity commands stop for ``cmd_timeout`` s and latches an
   emergency stop (:mod:`mrs_bridge.baseguard`).
@@ -24,7 +26,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +46,7 @@ from rsal.msgs import (
 )
 
 from ..baseguard import ESTOP_OPS, BaseGuard
+from ..battery import DEFAULT_LOW_BATTERY, LowBattery
 from ..config import ConfigError
 from ..driver import Deferred, Driver, OutOfRange, register
 from ..params import param, parse_params
@@ -75,7 +78,8 @@ class SimParams:
 
     model: str | None = param(None, doc="the world's model (default: the provided devices' node)")
     localization: str | None = param(None, doc='"gps": ground-truth poses; default: the world\'s')
-    battery_percent: float = param(100.0, min=0.0, max=100.0, doc="%")
+    battery_percent: float | None = param(None, min=0.0, max=100.0, doc="% at start; default: the world's")
+    low_battery: float = param(DEFAULT_LOW_BATTERY, min=0.0, max=100.0, doc="% below which power:0 reports low")
     cmd_timeout: Any = param(None, doc="s, read by the base guard (mrs_bridge.baseguard)")
 
 
@@ -155,6 +159,7 @@ class SimulationDriver(Driver):
         return {
             "interval_sim": self.world.spec.interval_sim,
             "speedup": self.speedup if math.isfinite(self.speedup) else 0,
+            "chargers": [simmsgs.charger_geometry(c) for c in self.world.spec.chargers],
         }
 
     def on_rpc(self, addr, op, args):
@@ -285,7 +290,9 @@ class SimDriver(Driver):
         self._last_scan: dict[DeviceAddr, float] = {}
         self._last_grip: dict[DeviceAddr, tuple] = {}
         self._last_contact: dict[DeviceAddr, float] = {}  # sim time of the bumper/fiducial data last sent
-        self.battery = p.battery_percent
+        if p.battery_percent is not None:
+            world.set_battery(self.model, p.battery_percent / 100.0)
+        self.low = LowBattery(p.low_battery)
         self._last_power = -math.inf
         self.motors = True
         self.guard = BaseGuard.for_driver(self, self.cfg.provides[0].node)
@@ -347,11 +354,19 @@ class SimDriver(Driver):
             elif iface == "fiducial":
                 self._publish_fiducial(w, a)
             elif iface == "power":
-                drain = 0.002 + 0.01 * abs(v)  # % per simulated second
-                self.battery = max(0.0, self.battery - drain * w.spec.interval_sim)
-                if t - self._last_power >= 1.0:
-                    self._last_power = t
-                    self.publish(a, simmsgs.power_data(t, self.battery))
+                self._publish_power(w, a, t)
+
+    def _publish_power(self, w, a: DeviceAddr, t: float) -> None:
+        """The battery once per simulated second (and at once when it turns low or recovers)."""
+        b = w.battery(self.model)
+        pct = 100.0 * b.fraction
+        msg = simmsgs.power_data(t, pct, b.charging, self.low.low)
+        ev = self.low.update(t, pct, msg.volts)
+        if ev is not None or t - self._last_power >= 1.0:
+            self._last_power = t
+            self.publish(a, replace(msg, low=self.low.low))
+        if ev is not None:
+            self.event(a, ev)
 
     def _publish_fiducial(self, w, a: DeviceAddr) -> None:
         """The finder's detections when it updated this step (:func:`simmsgs.fiducial_data`)."""
@@ -453,6 +468,13 @@ class SimDriver(Driver):
             return simmsgs.bumper_geometry(s.bumpers[addr.index])
         if addr.interface == "fiducial":
             return simmsgs.fiducial_geometry(s.fiducials[addr.index])
+        if addr.interface == "power":
+            b = s.battery
+            return {
+                "battery": b is not None,  # false: no battery model, the robot never runs flat
+                "capacity": b.capacity if b is not None else 0.0,  # J
+                "low_battery": self.low.threshold,  # %
+            }
         return {}
 
     def shutdown(self) -> None:

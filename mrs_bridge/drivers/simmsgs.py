@@ -13,6 +13,7 @@ from typing import Any
 
 from rsal.interfaces.bumper import BumperData, BumperGeometry, BumperSegment
 from rsal.interfaces.fiducial import FiducialData, FiducialGeometry, FiducialItem
+from rsal.interfaces.power import lead_acid_volts
 from rsal.msgs import BlobData, BlobfinderData, GripperData, PowerData, RangerData
 
 __all__ = [
@@ -21,6 +22,7 @@ __all__ = [
     "blobfinder_geometry",
     "bumper_data",
     "bumper_geometry",
+    "charger_geometry",
     "fiducial_data",
     "fiducial_geometry",
     "gripper_data",
@@ -76,16 +78,25 @@ def fiducial_data(t: float, seen) -> FiducialData:
 
 
 def battery_volts(percent: float) -> float:
-    """The simulated battery's voltage at ``percent`` charge: 10.5 V empty to 13 V full."""
-    return 10.5 + 2.5 * percent / 100.0
+    """The simulated battery's voltage at ``percent`` charge: the lead-acid curve of
+    :func:`rsal.interfaces.power.lead_acid_volts`, 10.5 V empty to 13 V full."""
+    return lead_acid_volts(percent / 100.0)
 
 
-def power_data(t: float, percent: float) -> PowerData:
-    """The simulated battery at ``percent`` charge."""
-    return PowerData(t, battery_volts(percent), percent)
+def power_data(t: float, percent: float, charging: bool = False, low: bool = False) -> PowerData:
+    """The simulated battery at ``percent`` charge (a :class:`simulator.energy.BatteryState`'s
+    ``fraction`` times 100)."""
+    return PowerData(t, battery_volts(percent), min(100.0, max(0.0, percent)), bool(charging), bool(low))
 
 
 # ---------------------------------------------------------------------------------- geometry
+def charger_geometry(c) -> dict[str, Any]:
+    """A :class:`simulator.spec.ChargerSpec` as an entry of the simulation's ``describe``
+    ``chargers``: ``name``, ``pose`` [x, y, yaw], ``rate`` W, ``distance`` m, ``angle`` rad (nil:
+    any heading docks)."""
+    return {"name": c.name, "pose": list(c.pose), "rate": c.rate, "distance": c.distance, "angle": c.angle}
+
+
 def ranger_geometry(r) -> dict[str, Any]:
     """A :class:`simulator.spec.RangerSpec` as the ranger's ``describe`` geometry."""
     sensors = [

@@ -12,11 +12,12 @@ from __future__ import annotations
 __all__ = [
     "BUILTIN_TYPES", "MODEL_TYPES", "NOT_SIMULATED", "SKIPPED", "DEVICE_TYPES", "KEYS_BY_TYPE", "MODEL_KEYS",
     "NOT_SIMULATED_KEYS", "BLOCK_KEYS", "POSITION_KEYS", "RANGER_KEYS", "LASER_KEYS", "SENSOR_KEYS",
-    "BLOBFINDER_KEYS", "GRIPPER_KEYS", "BUMPER_KEYS", "FIDUCIAL_KEYS", "WORLD_KEYS",
+    "BLOBFINDER_KEYS", "GRIPPER_KEYS", "BUMPER_KEYS", "FIDUCIAL_KEYS", "WORLD_KEYS", "BATTERY_KEYS",
+    "CHARGER_KEYS",
 ]  # fmt: skip
 
 MODEL_TYPES = frozenset(
-    {"model", "position", "ranger", "sensor", "laser", "blobfinder", "gripper", "bumper", "fiducial"}
+    {"model", "position", "ranger", "sensor", "laser", "blobfinder", "gripper", "bumper", "fiducial", "charger"}
 )
 NOT_SIMULATED = frozenset({"camera", "actuator", "ptz"})
 SKIPPED = frozenset({"window", "block"})  # the GUI window; block outlines are read by the mapping
@@ -32,7 +33,10 @@ MODEL_KEYS = frozenset(
         "give_watts", "take_watts", "line_count", "line.points", "line.point", "debug",
     }
 )  # fmt: skip
-POSITION_KEYS = MODEL_KEYS | {
+# Our battery extension of a position model (Stage's joules/kjoules/joules_capacity/watts/take_watts
+# are read too; simulator.energy).
+BATTERY_KEYS = frozenset({"battery_capacity", "battery_charge", "battery_drain"})
+POSITION_KEYS = MODEL_KEYS | BATTERY_KEYS | {
     "drive", "velocity_bounds", "acceleration_bounds", "odom_error", "odom_noise", "localization",
     "localization_origin", "wheelbase", "velocity_enable",
 }  # fmt: skip
@@ -51,6 +55,8 @@ GRIPPER_KEYS = MODEL_KEYS | {
 }  # fmt: skip
 BUMPER_KEYS = MODEL_KEYS | {"bcount", "bpose", "blength"}
 FIDUCIAL_KEYS = MODEL_KEYS | {"range_min", "range_max", "range_max_id", "fov"}
+# Our charging station (simulator.spec.ChargerSpec): a top-level model that is not a body.
+CHARGER_KEYS = frozenset({"name", "pose", "size", "color", "color_rgba", "charge_rate", "dock_distance", "dock_angle"})
 WORLD_KEYS = frozenset(
     {
         "name", "resolution", "interval_sim", "interval_real", "speedup", "quit_time", "threads",
@@ -67,6 +73,7 @@ KEYS_BY_TYPE = {
     "gripper": GRIPPER_KEYS,
     "bumper": BUMPER_KEYS,
     "fiducial": FIDUCIAL_KEYS,
+    "charger": CHARGER_KEYS,
 }
 DEVICE_TYPES = frozenset({"ranger", "laser", "blobfinder", "gripper", "bumper", "fiducial"})
 BLOCK_KEYS = frozenset({"points", "point", "z", "color", "color_rgba"})
@@ -89,7 +96,8 @@ NOT_SIMULATED_KEYS: dict[str, frozenset[str]] = {
     "world": frozenset({"paused", "size", "log"}),
     "model": _MODEL_NOT_SIMULATED,
     "floorplan": (_MODEL_NOT_SIMULATED - {"boundary"}) | _DEVICE_FIDUCIAL,
-    "position": (_MODEL_NOT_SIMULATED - {"ctrl", "update_interval"})
+    "position": (_MODEL_NOT_SIMULATED - {"ctrl", "update_interval", "joules", "kjoules", "joules_capacity", "watts",
+                                         "take_watts"})
     | {"localization_origin", "wheelbase", "velocity_enable"},
     "ranger": frozenset({"fiducial_return", "fiducial_key", "watts"}),
     "laser": frozenset({"fiducial_return", "fiducial_key", "watts", "laser_sample_skip", "resolution"}),

@@ -13,6 +13,13 @@ meaning, no code shared):
   named ``<type>:<n>`` as Stage does (``n`` counts the models of that built-in type at their level).
 * Extensions: ``odom_noise [x y a]`` on a position model, ``map_resolution``/``origin`` on a
   floorplan, ``seed`` at world level.
+* Energy (:mod:`simulator.energy`): a position model's battery is the Pioneer's unless it says
+  otherwise, with Stage's power-pack keywords (``joules`` stored and capacity, ``kjoules``,
+  ``joules_capacity``, ``watts`` the constant draw, ``take_watts`` the most it charges at) or ours
+  (``battery_capacity`` in Wh, 0: no battery model; ``battery_charge`` the starting fraction;
+  ``battery_drain [J/m J/rad W]``). A top-level ``charger`` model (ours) is a charging station:
+  ``pose``, ``charge_rate`` (W), ``dock_distance`` (m), ``dock_angle`` (degrees; absent: any
+  heading).
 """
 
 from __future__ import annotations
@@ -21,12 +28,14 @@ import math
 from pathlib import Path
 
 from ..controllers import CONTROLLERS
+from ..energy import battery_problem
 from ..errors import WorldFileError, did_you_mean
 from ..gridmap import MAP_YAML_SUFFIXES, image_size, read_map_yaml
-from ..spec import FloorplanSpec, ModelSpec, WorldSpec, parse_color
+from ..spec import BatterySpec, ChargerSpec, FloorplanSpec, ModelSpec, WorldSpec, parse_color
 from .devices import DeviceMapping
 from .keywords import (
     BLOCK_KEYS,
+    CHARGER_KEYS,
     DEVICE_TYPES,
     MODEL_KEYS,
     NOT_SIMULATED,
@@ -103,6 +112,9 @@ class Mapper(DeviceMapping):
                     inst.tok.line,
                 )
             seen[name] = where(inst.tok)
+            if base == "charger":
+                spec.chargers.append(self._charger(inst, name))
+                continue
             model = self._robot(inst, name) if base == "position" else self._passive(inst, name)
             spec.models.append(model)
         if seed is not None:
@@ -296,8 +308,70 @@ class Mapper(DeviceMapping):
             v = nums(p, (3,), "[x y a] noise fractions >= 0", "odom_noise [ 0.01 0.01 0.02 ]")
             check(min(v) >= 0, p, "[x y a] noise fractions >= 0", "odom_noise [ 0.01 0.01 0.02 ]")
             m.odom_noise = (v[0], v[1], v[2])
+        self._battery(inst, m)
         self._devices(inst, m, (0.0, 0.0, 0.0), {})
         return m
+
+    # ------------------------------------------------------------------ energy
+    def _battery(self, inst: Inst, m: ModelSpec) -> None:
+        """The robot's battery from Stage's power-pack keywords and ours (module docstring)."""
+        P = inst.props
+        b = m.battery = BatterySpec() if m.battery is None else m.battery
+        stored: float | None = None
+        for key, scale in (("joules", 1.0), ("kjoules", 1000.0)):
+            if (p := P.get(key)) is not None:
+                v = num(p, "joules > 0", f"{key} 900000")
+                check(v > 0, p, "joules > 0", f"{key} 900000")
+                stored = b.capacity = v * scale
+                b.charge = 1.0
+        if (p := P.get("joules_capacity")) is not None:
+            v = num(p, "joules > 0", "joules_capacity 933120")
+            check(v > 0, p, "joules > 0", "joules_capacity 933120")
+            b.capacity = v
+            b.charge = 1.0 if stored is None else min(1.0, stored / v)
+        if (p := P.get("battery_capacity")) is not None:
+            v = num(p, "watt-hours >= 0 (0: no battery model)", "battery_capacity 259.2")
+            check(v >= 0, p, "watt-hours >= 0 (0: no battery model)", "battery_capacity 259.2")
+            if v == 0:
+                m.battery = None
+                return
+            b.capacity = v * 3600.0
+        if (p := P.get("battery_charge")) is not None:
+            v = num(p, "a fraction from 0 to 1", "battery_charge 0.8")
+            check(0 <= v <= 1, p, "a fraction from 0 to 1", "battery_charge 0.8")
+            b.charge = v
+        if (p := P.get("battery_drain")) is not None:
+            need, example = "[J/m J/rad W] >= 0 (per metre, per radian, constant)", "battery_drain [ 20 4 20 ]"
+            v = nums(p, (3,), need, example)
+            check(min(v) >= 0, p, need, example)
+            b.per_metre, b.per_radian, b.watts = v
+        for key, attr in (("watts", "watts"), ("take_watts", "max_charge")):
+            if (p := P.get(key)) is not None:
+                v = num(p, "watts >= 0", f"{key} 20")
+                check(v >= 0, p, "watts >= 0", f"{key} 20")
+                setattr(b, attr, v)
+        if (why := battery_problem(b)) is not None:  # pragma: no cover - each key is checked above
+            raise WorldFileError(f"'{m.name}': {why}", inst.tok.file, inst.tok.line)
+
+    def _charger(self, inst: Inst, name: str) -> ChargerSpec:
+        P = inst.props
+        self.check_keys(P, CHARGER_KEYS, f"charger '{name}'")
+        c = ChargerSpec(name=name, source=where(inst.tok))
+        if (p := P.get("pose")) is not None:
+            c.pose = parse_pose(p)
+        if (p := P.get("size")) is not None:
+            parse_size(p, 0.0)
+        if (p := P.get("charge_rate")) is not None:
+            c.rate = num(p, "watts > 0", "charge_rate 100")
+            check(c.rate > 0, p, "watts > 0", "charge_rate 100")
+        if (p := P.get("dock_distance")) is not None:
+            c.distance = num(p, "metres > 0", "dock_distance 0.3")
+            check(c.distance > 0, p, "metres > 0", "dock_distance 0.3")
+        if (p := P.get("dock_angle")) is not None:
+            v = num(p, "degrees from 0 to 180", "dock_angle 20")
+            check(0 <= v <= 180, p, "degrees from 0 to 180", "dock_angle 20")
+            c.angle = math.radians(v)
+        return c
 
     # ------------------------------------------------------------------ floorplan
     def _floorplan(self, inst: Inst, name: str) -> FloorplanSpec:

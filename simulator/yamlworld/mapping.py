@@ -15,22 +15,34 @@ from pathlib import Path
 
 from ..gridmap import MAP_YAML_SUFFIXES, image_size, read_map_yaml
 from ..presets import OBJECT_PRESETS, ROBOT_PRESETS
-from ..spec import BlobfinderSpec, BumperSpec, FiducialSpec, FloorplanSpec, ModelSpec, RangerSpec, WorldSpec
+from ..spec import (
+    BatterySpec,
+    BlobfinderSpec,
+    BumperSpec,
+    ChargerSpec,
+    FiducialSpec,
+    FloorplanSpec,
+    ModelSpec,
+    RangerSpec,
+    WorldSpec,
+)
 from .devices import DeviceSections
 from .reader import LineMap
 from .values import short
 
 __all__ = ["DEFAULT_RESOLUTION", "Mapper"]
 
-TOP_KEYS = ("world", "floorplan", "robots", "objects")
+TOP_KEYS = ("world", "floorplan", "robots", "objects", "chargers")
 WORLD_KEYS = ("interval_sim", "speedup", "seed", "name")
 FLOORPLAN_KEYS = ("bitmap", "resolution", "origin", "size", "pose", "threshold", "name")
 FLAG_KEYS = ("obstacle_return", "laser_return", "blob_return", "gripper_return")
 FIDUCIAL_KEYS = ("fiducial_return", "fiducial_key")
 ROBOT_KEYS = (
     "name", "type", "pose", "color", "sonar", "devices", "size", "mass", "max_speed", "max_accel",
-    "odom_error", "odom_noise", "drive", *FLAG_KEYS, *FIDUCIAL_KEYS,
+    "odom_error", "odom_noise", "drive", "battery", *FLAG_KEYS, *FIDUCIAL_KEYS,
 )  # fmt: skip
+BATTERY_KEYS = ("capacity", "charge", "per_metre", "per_radian", "watts", "max_charge")
+CHARGER_KEYS = ("name", "pose", "rate", "distance", "angle")
 OBJECT_KEYS = ("name", "type", "pose", "color", "size", "mass", *FLAG_KEYS, *FIDUCIAL_KEYS)
 DEFAULT_RESOLUTION = 0.05
 """Metres per pixel of a floorplan that gives neither ``resolution`` nor ``size``."""
@@ -72,6 +84,17 @@ class Mapper(DeviceSections):
                 seen[model.name] = m.line_of("name")
                 model.source = f"{self.file}:{m.line}"
                 spec.models.append(model)
+        items = self.sequence(top, "chargers", "the world file", "chargers: [{name: dock0, pose: [0, 0, 0]}]")
+        for i, item in enumerate(items):
+            m = self.mapping(item, items.line_at(i), f"chargers[{i}]", "{name: dock0, pose: [0, 0, 0], rate: 100}")
+            c = self.charger(m, f"chargers[{i}]")
+            if c.name in seen:
+                raise self.error(
+                    m.line_of("name"),
+                    f"chargers[{i}]: the name '{c.name}' is taken (line {seen[c.name]}); give each a unique name",
+                )
+            seen[c.name] = m.line_of("name")
+            spec.chargers.append(c)
         if seed is not None:
             spec.seed = int(seed)
         spec.warnings = list(self.warnings)
@@ -187,6 +210,8 @@ class Mapper(DeviceSections):
             drive = self.text(m, "drive", where)
             if drive != "diff":
                 self.warn(m.line_of("drive"), f"{where}: drive '{drive}' is not simulated; using 'diff'")
+        if "battery" in m:
+            self.battery(m, where, spec)
         devices = self.sequence(m, "devices", where, "devices: [{type: laser, model: urg04lx}]")
         for i, item in enumerate(devices):
             dwhere = f"{where}.devices[{i}]"
@@ -203,6 +228,43 @@ class Mapper(DeviceSections):
             else:
                 spec.grippers.append(dev)
         return spec
+
+    def battery(self, m: LineMap, where: str, spec: ModelSpec) -> None:
+        """A robot's ``battery:`` map over its preset's (Pioneer) battery, or ``battery: none``."""
+        v = m["battery"]
+        if v is None or v is False or (isinstance(v, str) and v.strip().lower() == "none"):
+            spec.battery = None
+            return
+        where = f"{where}.battery"
+        b = self.mapping(v, m.line_of("battery"), where, "{capacity: 259.2, charge: 1.0, watts: 20}")
+        self.check_keys(b, BATTERY_KEYS, where)
+        bat = spec.battery = spec.battery or BatterySpec()
+        bat.capacity = self.num(b, "capacity", where, bat.capacity / 3600.0, positive=True, unit=" (Wh)") * 3600.0
+        bat.charge = self.num(b, "charge", where, bat.charge, lo=0.0, unit=" (fraction 0..1)")
+        if bat.charge > 1.0:
+            raise self.error(b.line_of("charge"), f"{where}.charge must be a fraction from 0 to 1; e.g. charge: 0.8")
+        for key, unit in (
+            ("per_metre", " (J/m)"),
+            ("per_radian", " (J/rad)"),
+            ("watts", " (W)"),
+            ("max_charge", " (W)"),
+        ):
+            setattr(bat, key, self.num(b, key, where, getattr(bat, key), lo=0.0, unit=unit))
+
+    def charger(self, m: LineMap, where: str) -> ChargerSpec:
+        """A ``chargers[]`` item: a charging station (:class:`~simulator.spec.ChargerSpec`)."""
+        name = self.text(m, "name", where, "dock0", required=True)
+        where = f"{where} ({name})"
+        self.check_keys(m, CHARGER_KEYS, where)
+        c = ChargerSpec(name=name, pose=self.pose(m, "pose", where), source=f"{self.file}:{m.line}")
+        c.rate = self.num(m, "rate", where, c.rate, positive=True, unit=" (W)")
+        c.distance = self.num(m, "distance", where, c.distance, positive=True, unit=" (m)")
+        if "angle" in m:
+            deg = self.num(m, "angle", where, 20.0, lo=0.0, unit=" (degrees)")
+            if deg > 180:
+                raise self.error(m.line_of("angle"), f"{where}.angle must be at most 180 degrees; e.g. angle: 20")
+            c.angle = math.radians(deg)
+        return c
 
     def non_negative(self, m: LineMap, key: str, where: str) -> list[float]:
         """A robot's ``max_speed``/``max_accel`` (m/s or m/s^2, deg/s or deg/s^2) or

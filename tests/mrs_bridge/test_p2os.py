@@ -30,6 +30,7 @@ from mrs_bridge.drivers.p2os import (
     packet,
 )
 from mrs_bridge.emulators.p2os import PioneerEmulator
+from rsal.interfaces.power import lead_acid_fraction
 from rsal.keys import parse_device
 from rsal.msgs import DioCmd, ErrorCode, GripperCmd, RpcError, VelocityCmd
 
@@ -216,6 +217,24 @@ def test_connects_and_publishes_every_device(robot, served):
     assert lift.rpc("set_position", joint=0, position=1.0) == {"ok": True, "position": 1.0}
     wait_until(lambda: lift.latest["positions"] == [1.0], 10, "the lift to be up")
     assert robot.commands(p2os.GRIPPER) == [p2os.LIFT_UP]
+
+
+def test_power_charge_from_the_sip_voltage_and_the_low_battery_event(robot, served):
+    """The charge comes from the SIP's battery voltage by the lead-acid curve the simulator uses;
+    falling below ``low_battery`` (20 %) sends the low event once, charging sends recovered."""
+    srv, fab, node = served
+    power = fab.device("r0:power:0")
+    events: list[dict] = []
+    power.add_event_listener(events.append)
+    first = power.wait_for_data(10)
+    assert first.percent == pytest.approx(100 * lead_acid_fraction(12.3)) and not first.low
+    robot.battery = 11.6  # 10 % by the curve
+    wait_until(lambda: power.latest.low and power.latest.percent == pytest.approx(10.0, abs=0.5), 10, "low data")
+    wait_until(lambda: [e["event"] for e in events] == ["low"], 10, "one low event")
+    assert events[0]["threshold"] == 20.0 and events[0]["volts"] == pytest.approx(11.6)
+    robot.battery = 12.5  # about 76 %
+    wait_until(lambda: [e["event"] for e in events] == ["low", "recovered"], 10, "the recovered event")
+    assert not power.latest.low
 
 
 @pytest.mark.parametrize(("subclass", "sonars"), [("P3AT", 16), ("P2DE", None)])
