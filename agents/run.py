@@ -20,7 +20,10 @@ a progress line every few seconds, and relays
 its children's output with their name in front. The run ends with success (exit 0) when the end
 condition holds — ``count`` distinct subjects of ok ``event`` outcomes, or ``duration`` seconds
 (counted from the moment every agent is alive) without a failed outcome — or at once with the
-``ok`` of an outcome marked ``final``. It fails (exit 1) on its timeout, a failed final outcome or a
+``ok`` of an outcome marked ``final``. With a simulator every claim is checked against its ground
+truth first (:mod:`agents.verdict`): a catch, an arrival or a final verdict the true poses
+contradict counts as failed, and a duration run's ``travel``/``clearance`` come from sampled true
+poses. It fails (exit 1) on its timeout, a failed final outcome or a
 child that exits unexpectedly (one line naming it and its last stderr line). A bad scenario file or
 argument exits 2 with one line; SIGINT/SIGTERM stop everything and exit 130. Stopping sends SIGTERM
 to the agent hosts, then the servers, then the simulator, each with a deadline, and SIGKILL by PID
@@ -281,6 +284,8 @@ class Runner:
             if false:  # a claim the simulator contradicts counts as a failure, with the truth's reason
                 mark = f" (not confirmed: {false})"
             self.out.say(f"outcome from {who}: {what.text}{mark}")
+            if self.truth is not None and self.truth.note:
+                self.out.say(self.truth.note)
             if false:
                 what = dataclasses.replace(what, text=f"{what.text} -- {false}", ok=False)
             if what.final:

@@ -25,7 +25,6 @@ A claim the truth contradicts counts as a failed outcome, with the reason in one
 from __future__ import annotations
 
 import inspect
-import logging
 import math
 
 import numpy as np
@@ -33,8 +32,6 @@ import numpy as np
 from .scenario import Application, Scenario
 
 __all__ = ["ARRIVE_TOLERANCE", "CATCH_SLACK", "SAMPLE_PERIOD", "GroundTruth"]
-
-log = logging.getLogger(__name__)
 
 #: m beyond the capture distance a true catch may lie: the hunter judges on its AMCL pose (the
 #: thesis's 0.30 m) against the prey's last broadcast (2 Hz at 0.2 m/s: 0.1 m old at most), and the
@@ -77,6 +74,7 @@ class GroundTruth:
         self.agents = {a.id: a for a in app.agents}
         self.robots = sorted({a.robot for a in app.agents if a.robot})
         self.assigned: dict[str, tuple[float, float]] = {}  # robot -> its last assigned target
+        self.note = ""  # what the truth showed for the last confirmed verdict
         self.travelled: dict[str, float] = {}
         self.nearest_wall: dict[str, float] = {}
         self._last: dict[str, tuple[float, float]] = {}
@@ -94,7 +92,8 @@ class GroundTruth:
     # ------------------------------------------------------------------ claims
     def check(self, sender: str, o) -> str | None:
         """Why the outcome ``o`` from ``sender`` is false by ground truth, or None (true, or not a
-        claim the truth can judge)."""
+        claim the truth can judge); a confirmed verdict leaves what the truth showed in ``note``."""
+        self.note = ""
         try:
             if o.event == "assigned" and o.at is not None:
                 self.assigned[o.subject] = o.at
@@ -105,13 +104,15 @@ class GroundTruth:
                 if d > ARRIVE_TOLERANCE:
                     return f"ground truth: {o.subject} is {d:.2f} m from its goal {_xy(o.at)} (> {ARRIVE_TOLERANCE:g} m)"
             elif o.event == "verdict" and o.final and o.ok and self.assigned:
-                far = []
+                far, seen = [], []
                 for robot, at in sorted(self.assigned.items()):
                     d = math.dist(self._where(robot), at)
+                    seen.append(f"{robot} {d:.2f} m")
                     if d > ARRIVE_TOLERANCE:
                         far.append(f"{robot} {d:.2f} m from {_xy(at)}")
                 if far:
                     return f"ground truth: not at the assigned target (> {ARRIVE_TOLERANCE:g} m): {', '.join(far)}"
+                self.note = f"ground truth: {', '.join(seen)} from the assigned targets"
         except Exception as e:  # the simulation did not answer: no verdict on beliefs either
             return f"ground truth unavailable for {o.event} {o.subject!r}: {type(e).__name__}: {e}"
         return None
@@ -131,7 +132,7 @@ class GroundTruth:
                 f"ground truth: {hunter.robot} is {d:.2f} m from the prey {o.subject} "
                 f"(capture distance {cap:g} m + {CATCH_SLACK:g} m)"
             )
-        log.info("ground truth: %s %.2f m from %s at the catch", hunter.robot, d, o.subject)
+        self.note = f"ground truth: {hunter.robot} {d:.2f} m from {o.subject} at the catch"
         return None
 
     # ------------------------------------------------------------------ duration runs

@@ -66,6 +66,7 @@ def judge(sc, app, poses):
 def test_a_catch_counts_only_within_the_capture_distance_on_ground_truth(sc):
     g, sim = judge(sc, "hunt", {"r0": (0.0, 0.0), "r1": (1.0 + CATCH_SLACK - 0.05, 0.0), "r2": (5.0, 0.0)})
     assert g.check("h1", Outcome("caught", "r0", "prey r0 caught by r1")) is None
+    assert g.note == "ground truth: r1 1.45 m from r0 at the catch"
     why = g.check("h2", Outcome("caught", "r0", "prey r0 caught by r2"))  # its own capture distance, 2 m
     assert why == "ground truth: r2 is 5.00 m from the prey r0 (capture distance 2 m + 0.5 m)"
     sim.poses["r1"] = (3.0, 4.0)  # the class default, 1 m, for h1
@@ -85,6 +86,7 @@ def test_arrival_and_a_distribution_verdict_are_judged_by_true_distance(sc):
     assert why == f"ground truth: not at the assigned target (> {ARRIVE_TOLERANCE:g} m): r1 3.00 m from (3.00, 0.00)"
     sim.poses["r1"] = (3.0, 0.3)
     assert g.check("d", Outcome("verdict", "distribution", "ok", final=True)) is None
+    assert g.note == "ground truth: r1 0.30 m, r3 0.20 m from the assigned targets"
 
 
 def test_duration_run_travel_and_wall_clearance_from_sampled_truth(sc):
