@@ -21,7 +21,8 @@ its children's output with their name in front. The run ends with success (exit 
 condition holds — ``count`` distinct subjects of ok ``event`` outcomes, or ``duration`` seconds
 (counted from the moment every agent is alive) without a failed outcome — or at once with the
 ``ok`` of an outcome marked ``final``. With a simulator every claim is checked against its ground
-truth first (:mod:`agents.verdict`): a catch, an arrival or a final verdict the true poses
+truth first (:mod:`agents.verdict`; also with ``--connect`` to a fabric whose simulation device is
+alive): a catch, an arrival or a final verdict the true poses
 contradict counts as failed, and a duration run's ``travel``/``clearance`` come from sampled true
 poses. It fails (exit 1) on its timeout, a failed final outcome or a
 child that exits unexpectedly (one line naming it and its last stderr line). A bad scenario file or
@@ -279,6 +280,8 @@ class Runner:
         if kind == "outcome":
             t = self.tally
             t.messages[what.event] += 1
+            if self.truth is None and SIM_DEVICE in self.devices:  # joined a fabric with a simulation
+                self.truth = GroundTruth(self.session, self.sc, self.app)
             false = self.truth.check(who, what) if self.truth is not None else None
             mark = "" if what.ok else " (failed)"
             if false:  # a claim the simulator contradicts counts as a failure, with the truth's reason
