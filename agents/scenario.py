@@ -304,7 +304,8 @@ def _application(c: _Ctx, name: str, raw: Any, agent_types: dict[str, str]) -> A
     end = _end(c, f"{where}.end", m["end"])
     truth = [k for k in ("travel", "clearance") if getattr(end, k) is not None]
     if truth and sim is None:
-        raise c.fail(f"{where}.end.{truth[0]}", "is judged on the simulator's ground truth; add a 'simulator' or remove it")
+        why = "is judged on the simulator's ground truth; add a 'simulator' or remove it"
+        raise c.fail(f"{where}.end.{truth[0]}", why)
     return Application(name, description, sim, servers, tuple(agents), end)
 
 

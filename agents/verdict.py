@@ -27,8 +27,6 @@ from __future__ import annotations
 import inspect
 import math
 
-import numpy as np
-
 from .scenario import Application, Scenario
 
 __all__ = ["ARRIVE_TOLERANCE", "CATCH_SLACK", "SAMPLE_PERIOD", "GroundTruth"]
@@ -102,7 +100,8 @@ class GroundTruth:
             elif o.event == "arrived" and o.ok and o.at is not None:
                 d = math.dist(self._where(o.subject), o.at)
                 if d > ARRIVE_TOLERANCE:
-                    return f"ground truth: {o.subject} is {d:.2f} m from its goal {_xy(o.at)} (> {ARRIVE_TOLERANCE:g} m)"
+                    where = f"{d:.2f} m from its goal {_xy(o.at)}"
+                    return f"ground truth: {o.subject} is {where} (> {ARRIVE_TOLERANCE:g} m)"
             elif o.event == "verdict" and o.final and o.ok and self.assigned:
                 far, seen = [], []
                 for robot, at in sorted(self.assigned.items()):

@@ -96,7 +96,9 @@ class ExploreAgent(WallfollowAgent):
         if not base:
             raise RobotError(f"robot {self.robot!r}: no position2d:{self.index} device (its base) yet")
         rest = [d for d in devices if d.interface != "position2d"]
-        robot = _Explorer(base + rest, name=self.robot, period=self.period, laser=self.laser, merge_dist=self.merge_dist)
+        robot = _Explorer(
+            base + rest, name=self.robot, period=self.period, laser=self.laser, merge_dist=self.merge_dist
+        )
         if robot.localize is not None:  # the localizer's own position2d (frame map), as NavRobot finds it
             for d in devices:
                 if d.interface != "position2d" or d is base[0]:

@@ -16,10 +16,11 @@ hunters (``ceil(hunters / prey)``), takes the nearest prey short of hunters for 
 and announces the other places one ``cfp`` at a time (task: the prey and where it is). A free hunter
 bids its straight-line distance to the prey, a busy one refuses, so the nearest free hunter wins
 ("nearest first"); the auctioneer allocates once every hunter it knows has broadcast a map position
-(it could not bid before it is localized), or after ``ALLOCATION_GRACE`` seconds. The winner chases until the prey is caught, by anyone, and then answers
-``inform-done``; nobody chases a caught prey. A hunter answers only the auctioneer's calls and bids
-only for prey it knows (offered ``prey`` on ``hello`` and broadcast a position), so a forged call
-for an unknown prey (a "ghost") commits nobody (``docs/security.md``, "Open fabric").
+(it could not bid before it is localized), or after ``ALLOCATION_GRACE`` seconds. The winner chases
+until the prey is caught, by anyone, and then answers ``inform-done``; nobody chases a caught prey.
+A hunter answers only the auctioneer's calls and bids only for prey it knows (offered ``prey`` on
+``hello`` and broadcast a position), so a forged call for an unknown prey (a "ghost") commits nobody
+(``docs/security.md``, "Open fabric").
 """
 
 from __future__ import annotations
