@@ -218,7 +218,8 @@ class NavAgent(RobotAgent):
             text = f"{self.robot}: goal {where} {what.get(res.status, 'failed')}: {res.message}"
             log.warning("%s: %s", self.id, text)
         if self.host is not None and self.state == "running":
-            self.publish(Outcome.SERVICE, Outcome("arrived", self.robot, text, ok=res.ok))
+            at = (g.x, g.y) if g is not None else None
+            self.publish(Outcome.SERVICE, Outcome("arrived", self.robot, text, ok=res.ok, at=at))
 
     def status(self) -> str:
         """One progress line: pose, goal and its state, waypoint, goals reached, positions sent."""

@@ -20,7 +20,11 @@ a progress line every few seconds, and relays
 its children's output with their name in front. The run ends with success (exit 0) when the end
 condition holds — ``count`` distinct subjects of ok ``event`` outcomes, or ``duration`` seconds
 (counted from the moment every agent is alive) without a failed outcome — or at once with the
-``ok`` of an outcome marked ``final``. It fails (exit 1) on its timeout, a failed final outcome or a
+``ok`` of an outcome marked ``final``. With a simulator every claim is checked against its ground
+truth first (:mod:`agents.verdict`; also with ``--connect`` to a fabric whose simulation device is
+alive): a catch, an arrival or a final verdict the true poses
+contradict counts as failed, and a duration run's ``travel``/``clearance`` come from sampled true
+poses. It fails (exit 1) on its timeout, a failed final outcome or a
 child that exits unexpectedly (one line naming it and its last stderr line). A bad scenario file or
 argument exits 2 with one line; SIGINT/SIGTERM stop everything and exit 130. Stopping sends SIGTERM
 to the agent hosts, then the servers, then the simulator, each with a deadline, and SIGKILL by PID
@@ -34,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import os
 import queue
 import signal
@@ -50,6 +55,7 @@ from rsal.procs import Child, python_env, stop_all
 from rsal.transport import free_port
 
 from .scenario import Application, Scenario, ScenarioError, check_classes, load_scenario, parse_set
+from .verdict import SAMPLE_PERIOD, GroundTruth
 
 __all__ = ["register", "run_scenario"]
 
@@ -112,6 +118,9 @@ class Runner:
         self.phase = "start"
         self.session = None
         self._handles: list = []
+        # with a simulator, outcomes are checked against its ground truth (agents.verdict)
+        self.truth: GroundTruth | None = None
+        self._next_sample = 0.0
         # The run's clock: wall seconds until the simulation's clock runs, then simulated seconds,
         # so durations and timeouts mean the same at any speed-up (see _now).
         self.sim_clock: SimClock | None = None
@@ -151,6 +160,7 @@ class Runner:
         self.session = open_session(targs)
         if self.app.simulator is not None:
             self.sim_clock = SimClock().follow(self.session, SIM_NODE)
+            self.truth = GroundTruth(self.session, self.sc, self.app)
         q = self.events
 
         def on_outcome(sample) -> None:
@@ -176,6 +186,8 @@ class Runner:
         ]
 
     def _close(self) -> None:
+        if self.truth is not None:
+            self.truth.close()
         for h in self._handles:
             try:
                 h.undeclare()
@@ -268,8 +280,17 @@ class Runner:
         if kind == "outcome":
             t = self.tally
             t.messages[what.event] += 1
+            if self.truth is None and SIM_DEVICE in self.devices:  # joined a fabric with a simulation
+                self.truth = GroundTruth(self.session, self.sc, self.app)
+            false = self.truth.check(who, what) if self.truth is not None else None
             mark = "" if what.ok else " (failed)"
+            if false:  # a claim the simulator contradicts counts as a failure, with the truth's reason
+                mark = f" (not confirmed: {false})"
             self.out.say(f"outcome from {who}: {what.text}{mark}")
+            if self.truth is not None and self.truth.note:
+                self.out.say(self.truth.note)
+            if false:
+                what = dataclasses.replace(what, text=f"{what.text} -- {false}", ok=False)
             if what.final:
                 if t.final is None:
                     t.final = (what.ok, what.text)
@@ -341,10 +362,14 @@ class Runner:
                     self.result = (True, "; ".join(list(got.values())[: e.count]))
                     return
             elif self.all_alive_at is not None and now - self.all_alive_at >= e.duration:
+                truth = self._truth_problems()
                 if t.failed:
                     self.result = (False, f"{len(t.failed)} failed outcome(s): {t.failed[0]}")
+                elif truth:
+                    self.result = (False, f"ground truth: {'; '.join(truth)}")
                 else:
-                    self.result = (True, f"ran {e.duration:g} s with every agent started and no failed outcome")
+                    seen = f" (ground truth: {self.truth.summary()})" if self.truth and self.truth.samples else ""
+                    self.result = (True, f"ran {e.duration:g} s with every agent started and no failed outcome{seen}")
                 return
         if now - t0 >= self.timeout:
             if self.phase == "sim":
@@ -353,6 +378,23 @@ class Runner:
                 up = len([a for a in self.expected if a in self.ever_alive])
                 why = f"timeout after {self.timeout:g} s ({self._count_text()}, {up}/{len(self.expected)} agents up)"
             self.result = (False, why)
+
+    def _sample_truth(self, now: float) -> None:
+        """True poses for ``end.travel``/``end.clearance``, every SAMPLE_PERIOD s once all agents live."""
+        if self.truth is None or not self.truth.samples or self.all_alive_at is None or now < self._next_sample:
+            return
+        self._next_sample = now + SAMPLE_PERIOD
+        try:
+            self.truth.sample()
+        except Exception as e:  # counted as a problem at the end if it leaves no samples
+            self.out.say(f"ground truth sample failed: {type(e).__name__}: {e}")
+
+    def _truth_problems(self) -> list[str]:
+        if self.truth is None or not self.truth.samples:
+            return []
+        self._next_sample = 0.0
+        self._sample_truth(self._now())  # the last pose, at the end
+        return self.truth.problems()
 
     # ------------------------------------------------------------------ main
     def _loop(self, t0: float) -> None:
@@ -365,6 +407,7 @@ class Runner:
                 self.out.say(f"simulator up after {now - t0:.1f} s: {len(self.devices)} device(s)")
                 self._start_rest()
                 self.phase = "run"
+            self._sample_truth(now)
             self._check(now, t0)
             if self.result is None and now >= next_progress:
                 next_progress = now + self.progress

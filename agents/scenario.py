@@ -63,7 +63,7 @@ _TOP = ("scenario", "description", "arguments", "agent_types", "applications")
 _APP = ("description", "simulator", "servers", "agents", "end")
 _SIM = ("world", "nav", "nav_robots", "speedup", "seed")
 _AGENT = ("type", "robot", "id", "args", "host", "count")
-_END = ("event", "count", "timeout", "duration")
+_END = ("event", "count", "timeout", "duration", "travel", "clearance")
 _NAV = ("vfh", "nd", "snd")
 
 
@@ -102,12 +102,17 @@ class AgentEntry:
 @dataclass(frozen=True)
 class End:
     """When a run is over: ``count`` distinct subjects of ok ``event`` outcomes (success), or
-    ``duration`` seconds without a failed outcome (success); ``timeout`` seconds: failure."""
+    ``duration`` seconds without a failed outcome (success); ``timeout`` seconds: failure. With a
+    simulator, ``travel`` (m) and ``clearance`` (m) are judged on ground truth (:mod:`agents.verdict`):
+    every agent's robot must have truly driven at least ``travel`` metres and kept its centre at
+    least ``clearance`` metres from every wall of the map."""
 
     event: str | None = None
     count: int = 1
     timeout: float = DEFAULT_TIMEOUT
     duration: float | None = None
+    travel: float | None = None
+    clearance: float | None = None
 
 
 @dataclass(frozen=True)
@@ -297,6 +302,10 @@ def _application(c: _Ctx, name: str, raw: Any, agent_types: dict[str, str]) -> A
             seen[entry.id] = f"{where}.agents[{i}]"
             agents.append(entry)
     end = _end(c, f"{where}.end", m["end"])
+    truth = [k for k in ("travel", "clearance") if getattr(end, k) is not None]
+    if truth and sim is None:
+        why = "is judged on the simulator's ground truth; add a 'simulator' or remove it"
+        raise c.fail(f"{where}.end.{truth[0]}", why)
     return Application(name, description, sim, servers, tuple(agents), end)
 
 
@@ -371,7 +380,9 @@ def _end(c: _Ctx, where: str, raw: Any) -> End:
     timeout = default if m.get("timeout") is None else c.number(m["timeout"], f"{where}.timeout")
     if duration is not None and timeout <= duration:
         raise c.fail(f"{where}.timeout", f"{timeout:g} s must be longer than the duration {duration:g} s")
-    return End(event, count, timeout, duration)
+    travel = None if m.get("travel") is None else c.number(m["travel"], f"{where}.travel")
+    clearance = None if m.get("clearance") is None else c.number(m["clearance"], f"{where}.clearance")
+    return End(event, count, timeout, duration, travel, clearance)
 
 
 # ---------------------------------------------------------------------------- classes and arguments

@@ -142,24 +142,41 @@ class Outcome(Body):
     """``outcome``: something a scenario counts happened — ``event`` (e.g. ``caught``, ``delivered``,
     ``arrived``, ``verdict``) about ``subject`` (the prey robot, the blob, the robot), with one
     human-readable line ``text``. ``ok`` false reports a failure; ``final`` true ends the scenario
-    run with ``ok`` as its result (``rsal run`` listens on ``svc/outcome/*``)."""
+    run with ``ok`` as its result (``rsal run`` listens on ``svc/outcome/*``). ``at`` (x, y in m,
+    map frame; optional, omitted on the wire when absent) is the place the claim is about -- the
+    goal an ``arrived`` reached, the target of an ``assigned`` -- so a judge can check it against
+    ground truth (:mod:`agents.verdict`)."""
 
     event: str
     subject: str
     text: str
     ok: bool = True
     final: bool = False
+    at: tuple[float, float] | None = None
 
     SERVICE: ClassVar[str] = "outcome"
 
+    def to_dict(self) -> dict:
+        d = super().to_dict()
+        if self.at is None:
+            del d["at"]
+        return d
+
     @classmethod
     def from_dict(cls, m: dict) -> Outcome:
+        at = m.get("at")
+        if at is not None:
+            ok = isinstance(at, (list, tuple)) and len(at) == 2
+            if not ok or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in at):
+                raise MessageError("field 'at' must be [x, y] (metres, map frame)")
+            at = (float(at[0]), float(at[1]))
         return cls(
             get_str(m, "event"),
             get_str(m, "subject"),
             get_str(m, "text"),
             get_bool(m, "ok", True),
             get_bool(m, "final", False),
+            at,
         )
 
 

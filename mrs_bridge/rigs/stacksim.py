@@ -76,6 +76,7 @@ class GoalResult:
     error: float  # m, true final position to goal
     loc_error_max: float  # m, largest localization error on the way
     message: str = ""
+    loc_error_mean: float = 0.0  # m, mean localization error over the steps on the way
 
 
 class RobotStack:
@@ -207,6 +208,7 @@ def run_goal(
     status = "driving"
     collided = False
     loc_max = 0.0
+    loc_sum, loc_n = 0.0, 0
     while w.time - t0 < timeout:
         status = stack.control(dt)
         if status in ("done", "aborted"):
@@ -215,7 +217,9 @@ def run_goal(
             others(w)
         w.step()
         stack.sense()
-        loc_max = max(loc_max, stack.loc_error())
+        e = stack.loc_error()
+        loc_max = max(loc_max, e)
+        loc_sum, loc_n = loc_sum + e, loc_n + 1
         if in_contact(w, stack.name):
             collided = True
             break
@@ -236,6 +240,7 @@ def run_goal(
         err,
         loc_max,
         msg,
+        loc_sum / loc_n if loc_n else 0.0,
     )
 
 

@@ -26,6 +26,9 @@ from tests.conftest import MAPS, SPEEDUP, LoopThread, free_port, rsal_cmd, wait_
 
 WORLD = MAPS / "collect.world"
 BLOBS = ("blob0", "blob1", "blob2")
+# m between a reported blob and the true one: AMCL's 0.30 m plus the blobfinder's range estimate (the
+# master's merge distance: a report farther off would count as another blob)
+REPORT_TOLERANCE = 0.5
 
 
 # ============================================================================ master, in memory
@@ -127,12 +130,12 @@ def test_agents_reject_bad_arguments():
 
 @pytest.fixture
 def sim(procs, sim_time):
-    """``rsal sim maps/collect.world`` with the navigation stack for c1 and c2, an agent host and a
-    simulation proxy on its endpoint."""
+    """``rsal sim maps/collect.world`` with the navigation stack for e1, c1 and c2 (the explorer
+    localizes with AMCL like the collectors), an agent host and a simulation proxy on its endpoint."""
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
     p = procs(
-        rsal_cmd("sim", str(WORLD), "--listen", ep, "--nav", "vfh", "--nav-robots", "c1,c2", "--speedup", SPEEDUP)
+        rsal_cmd("sim", str(WORLD), "--listen", ep, "--nav", "vfh", "--nav-robots", "e1,c1,c2", "--speedup", SPEEDUP)
     )
     lt = LoopThread(120.0)
     host = None
@@ -216,8 +219,9 @@ def test_whole_scenario_brings_all_blobs_home(sim, allocation):
     master = MasterAgent("master", allocation=allocation)
     lt.run(host.start(master))
     master.subscribe("outcome", lambda m: outcomes.append(m.body))
+    truth = {name: _where(simdev, name) for name in BLOBS}  # where the blobs lie before anyone moves them
     agents = [
-        ExploreAgent("explorer1", robot="e1", simulation=True, startup_timeout=60),
+        ExploreAgent("explorer1", robot="e1", startup_timeout=60),  # no oracle: it localizes with AMCL
         CollectAgent("collector1", robot="c1", startup_timeout=60),
         CollectAgent("collector2", robot="c2", startup_timeout=60),
     ]
@@ -226,6 +230,8 @@ def test_whole_scenario_brings_all_blobs_home(sim, allocation):
         await asyncio.gather(*(host.start(a) for a in agents))
 
     lt.run(start_all(), timeout=120)
+    assert agents[0].pioneer.localize is not None
+    wait_until(lambda: getattr(agents[0].pose_message(), "frame", "") == "map", 30, "the explorer's AMCL pose")
     homes = [(a.home.x, a.home.y) for a in agents[1:]]
     t0 = time.monotonic()
     wait_until(lambda: len({o.subject for o in outcomes if o.event == "delivered"}) >= 3, 700, "3 blobs delivered", 1.0)
@@ -233,7 +239,14 @@ def test_whole_scenario_brings_all_blobs_home(sim, allocation):
     for name in BLOBS:
         bx, by = _where(simdev, name)
         assert min(math.hypot(bx - hx, by - hy) for hx, hy in homes) < 1.0, (name, bx, by, homes)
-    assert len(master.blobs()) == 3  # one note per blob, however often each was reported
+    spots = [(n.data.id, round(n.data.spot.x, 2), round(n.data.spot.y, 2), n.data.reports) for n in master.blobs()]
+    print("blob notes (id, x, y, reports):", spots, "true:", truth)
+    assert len(master.blobs()) == 3, (spots, truth)  # one note per blob, however often each was reported
+    # the explorer's reports (its AMCL pose + the blobfinder's range) name where the blobs truly lay
+    for note in master.blobs():
+        p = note.data.spot  # where it was first reported (the note's position moves with the blob)
+        off = min(math.hypot(p.x - x, p.y - y) for x, y in truth.values())
+        assert off < REPORT_TOLERANCE, (note.data, p, truth)
     assert master.duplicates > 0
     if allocation == "contract_net":  # every blob went through a contract: 3 inform-done in all
         assert sum(list(a.cnp.outcomes.values()).count("done") for a in agents[1:]) == 3

@@ -10,6 +10,10 @@ killed agent dropped with its target re-assigned. The last test runs the ``three
 ``deploy/scenarios/distribution.yaml`` end to end with ``rsal run``: the simulator with the full
 navigation stack (AMCL, Wavefront, VFH) per robot, three NavAgents and the DispersionAgent; the last
 kills the real NavAgent holding target 0 while it drives: it is dropped and a live one takes target 0.
+Both end-to-end runs judge arrival on ground truth, not on the agents' own reports: ``rsal run``
+confirms the verdict with the simulator's poses (:mod:`agents.verdict`), and the in-process run reads
+the true poses (``rsal sim --truth``) at the verdict: every robot within
+:data:`agents.verdict.ARRIVE_TOLERANCE` of its assigned target.
 """
 
 from __future__ import annotations
@@ -27,11 +31,13 @@ from scipy import ndimage
 from agents.runtime import Agent, AgentHost
 from agents.scenarios.distribution import DispersionAgent, assign, target_points
 from agents.services import Message, Outcome, SendPosition, match
+from agents.verdict import ARRIVE_TOLERANCE  # Wavefront's goal tolerance + the 0.30 m localization bound
 from rsal.msgs import MapData
 from rsal.transport import TransportArgs
 from simulator.loader import load_world
 from simulator.world import World
 from tests.conftest import MAPS, ROOT, SPEEDUP, free_port, rsal_cmd, wait_until
+from tests.truth import Truth
 
 STARTS = [(-20.5, 5.0), (-14.0, 5.5), (-21.0, 8.0)]  # r0..r2 of maps/distribution.world
 
@@ -244,6 +250,10 @@ def test_three_navagents_reach_distinct_targets_with_rsal_run(procs):
     assert run.p.returncode == 0, out[-3000:]
     m = re.search(r"3 robots reached 3 distinct targets, min spacing (\d+\.\d) m", out)
     assert m and float(m.group(1)) >= 3.0, out[-3000:]
+    # the verdict was confirmed on ground truth: every robot truly at its assigned target
+    m = re.search(r"\[run\] ground truth: r0 ([\d.]+) m, r1 ([\d.]+) m, r2 ([\d.]+) m from the assigned targets", out)
+    assert m and all(float(d) <= ARRIVE_TOLERANCE for d in m.groups()), out[-3000:]
+    assert "not confirmed" not in out, out[-3000:]
 
 
 @pytest.mark.timeout(900)
@@ -255,11 +265,13 @@ def test_killed_navagent_is_dropped_and_its_target_reached_by_another(procs, sim
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     world = str(MAPS / "distribution.world")
-    procs(rsal_cmd("sim", world, "--listen", ep, "--nav", "vfh", "--nav-robots", "r0,r1,r2", "--speedup", SPEEDUP))
+    nav = ["--nav", "vfh", "--nav-robots", "r0,r1,r2"]
+    procs(rsal_cmd("sim", world, "--listen", ep, *nav, "--speedup", SPEEDUP, "--truth"))
 
     async def main():
         async with AgentHost.connect(TransportArgs(connect=[ep])) as host:
             await asyncio.to_thread(sim_time, host.session)
+            truth = Truth(host.session, ["r0", "r1", "r2"])
             navs = [NavAgent(f"nav{i}", robot=f"r{i}", startup_timeout=120) for i in range(3)]
             await asyncio.gather(*(host.start(a) for a in navs))
             disp = DispersionAgent(
@@ -272,10 +284,18 @@ def test_killed_navagent_is_dropped_and_its_target_reached_by_another(procs, sim
             await host.kill(victim)
             await _until(lambda: victim.id in disp.dropped, 15, "the killed agent to be dropped")
             await _until(lambda: disp.verdict is not None, 600, "the dispersion verdict")
+            # where the robots truly are at the verdict, against their assigned targets
+            off = {
+                disp.participants[a]: truth.to(disp.participants[a], *disp.targets[i])
+                for a, i in disp.assignment.items()
+            }
+            truth.close()
             live = [n for n in navs if n is not victim]
-            return victim, target0, live, disp.verdict, dict(disp.assignment), [n.reached for n in live]
+            return victim, target0, live, disp.verdict, dict(disp.assignment), [n.reached for n in live], off
 
-    victim, target0, live, v, assignment, reached = asyncio.run(main())
+    victim, target0, live, v, assignment, reached, off = asyncio.run(main())
+    print(f"true distances to the assigned targets at the verdict: {off}")
+    assert len(off) == 2 and all(d <= ARRIVE_TOLERANCE for d in off.values()), off
     print(v.text)
     assert victim.id not in assignment and sorted(assignment.values()) == [0, 1]
     taker = next(n for n in live if assignment[n.id] == 0)

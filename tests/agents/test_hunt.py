@@ -5,7 +5,11 @@ The agents run on an :class:`~agents.runtime.AgentHost` in this process (an asyn
 background thread); an observer agent records every ``outcome``. (a) NavAgent drives to a goal sent
 on ``new_goal`` and reports ``arrived``; a superseded goal is not reported; an unreachable goal gives
 ``arrived`` with ``ok`` false. (b) Two hunters catch one prey within 180 s, after which the prey turns
-on the spot. (c) Four hunters share two prey out by contract net and catch both. The scenario file
+on the spot. (c) Four hunters share two prey out by contract net and catch both. Every catch is
+judged on the simulator's ground truth (``rsal sim --truth``, :class:`tests.truth.Truth`): the
+catcher's true pose within the catch distance of the prey's at the moment of the ``caught`` outcome
+(plus the localization and broadcast slack), and in (c) every award of the contract net went to the
+truly nearest hunter still free. The scenario file
 runs under ``rsal run`` in tests/fabric/test_multihost.py (across hosts) and in the control page's
 browser test. Plus argument checks without a network. Every wait has a deadline; there are no fixed sleeps.
 """
@@ -25,27 +29,38 @@ from agents.registry import resolve
 from agents.runtime import Agent, AgentHost
 from agents.scenarios.hunt import EscapeAgent, FollowAgent
 from agents.services import Message, NewGoal, Outcome, SendPosition
+from agents.verdict import CATCH_SLACK  # how far a true catch may lie beyond the capture distance
 from rsal.clock import Clock, set_clock
 from rsal.data import Position
 from rsal.robot import RobotError
 from rsal.transport import TransportArgs, open_session
 from tests.conftest import MAPS, ROOT, SPEEDUP, LoopThread, free_port, rsal_cmd, wait_until
+from tests.truth import Truth
+
+# How much nearer than an award's winner a losing hunter may truly be: both bids are AMCL poses
+# against one broadcast prey position (2 x 0.30 m localization error).
+AWARD_SLACK = 0.6
 
 
 class Observer(Agent):
     """Records every ``outcome`` and can send ``new_goal`` messages."""
 
-    def __init__(self, agent_id: str = "observer"):
+    def __init__(self, agent_id: str = "observer", truth: Truth | None = None):
         super().__init__(agent_id, period=1.0)
         self.outcomes: list[tuple[str, Outcome]] = []
+        self.truth = truth
+        self.truth_at: dict[tuple[str, str, str], dict[str, Position]] = {}  # (sender, event, subject) -> poses
         self._lock = threading.Lock()
 
     async def created(self):
         self.subscribe(Outcome.SERVICE, self._on_outcome)
 
     def _on_outcome(self, msg):
+        # where every robot truly is as the outcome arrives (the latest truth samples, no round trip)
+        poses = self.truth.poses() if self.truth is not None else {}
         with self._lock:
             self.outcomes.append((msg.sender, msg.body))
+            self.truth_at.setdefault((msg.sender, msg.body.event, msg.body.subject), poses)
 
     def events(self, event: str) -> list[tuple[str, Outcome]]:
         with self._lock:
@@ -57,11 +72,12 @@ class Observer(Agent):
 
 @pytest.fixture
 def hunt(procs, sim_time):
-    """Start ``rsal sim WORLD --nav vfh --nav-robots ...``; yields ``start(world, nav_robots)`` which
-    returns an agent host connected to it and its observer."""
+    """Start ``rsal sim WORLD --nav vfh --nav-robots ... --truth``; yields ``start(world, nav_robots,
+    robots)`` which returns an agent host connected to it, its observer and the ground truth of
+    ``robots``."""
     state: dict = {}
 
-    def start(world: str, nav_robots: str):
+    def start(world: str, nav_robots: str, robots: list[str]):
         ep = f"tcp/127.0.0.1:{free_port()}"
         sim = procs(
             rsal_cmd(
@@ -75,22 +91,26 @@ def hunt(procs, sim_time):
                 nav_robots,
                 "--speedup",
                 SPEEDUP,
+                "--truth",
             )
         )
         lt = LoopThread(90.0)
         session = open_session(TransportArgs(connect=[ep]))
         sim_time(session)
+        truth = Truth(session, robots)
+        wait_until(truth.ready, 30, f"the true poses of {', '.join(robots)}")
         host = AgentHost(session)
         lt.run(host.__aenter__())
-        obs = Observer()
+        obs = Observer(truth=truth)
         lt.run(host.start(obs))
-        state.update(lt=lt, session=session, host=host, sim=sim)
-        return sim, lt, host, obs
+        state.update(lt=lt, session=session, host=host, sim=sim, truth=truth)
+        return sim, lt, host, obs, truth
 
     yield start
     if state:
         state["lt"].run(state["host"].stop())
         state["lt"].close()
+        state["truth"].close()
         state["session"].close()
 
 
@@ -173,7 +193,7 @@ def test_scenario_file_parses_and_matches_the_classes():
 # ---------------------------------------------------------------------------- with the simulator
 @pytest.mark.timeout(240)
 def test_nav_agent_goes_to_new_goal_reports_arrived_and_unreachable(hunt):
-    sim, lt, host, obs = hunt("hunt.world", "r1,r2")
+    sim, lt, host, obs, truth = hunt("hunt.world", "r1,r2", ["r1"])
     nav = NavAgent("nav1", robot="r1", startup_timeout=60)
     _start_all(lt, host, [nav])
 
@@ -192,6 +212,9 @@ def test_nav_agent_goes_to_new_goal_reports_arrived_and_unreachable(hunt):
     assert first.ok and first.subject == "r1" and "(-11.50, 1.75)" in first.text, first
     p = nav.nav.position
     assert math.hypot(p.x + 11.5, p.y - 1.75) < 0.6, p
+    # and it truly is there: the simulator's pose as the outcome came in
+    t = obs.truth_at[("nav1", "arrived", "r1")]["r1"]
+    assert math.hypot(t.x + 11.5, t.y - 1.75) < 0.6, t
     assert nav.reached == 1 and nav.failed == 0
     assert "goal (-11.50, 1.75) done" in nav.status() and "reached 1" in nav.status()
 
@@ -209,7 +232,7 @@ def test_nav_agent_goes_to_new_goal_reports_arrived_and_unreachable(hunt):
 
 @pytest.mark.timeout(300)
 def test_two_hunters_catch_the_prey_which_then_spins(hunt):
-    sim, lt, host, obs = hunt("hunt.world", "r1,r2")
+    sim, lt, host, obs, truth = hunt("hunt.world", "r1,r2", ["r0", "r1", "r2"])
     prey = EscapeAgent("prey0", robot="r0", speed=0.2, simulation=True, startup_timeout=60)
     hunters = [FollowAgent(f"hunter{i}", robot=f"r{i}", prey="r0", startup_timeout=60) for i in (1, 2)]
     t0 = time.monotonic()
@@ -225,6 +248,11 @@ def test_two_hunters_catch_the_prey_which_then_spins(hunt):
     # the catch was honest: the catcher's localized pose is near the prey's broadcast one
     me, them = catcher.nav.position, catcher.positions["r0"]
     assert math.hypot(me.x - them.x, me.y - them.y) <= catcher.capture_distance + 0.5
+    # ... and true: the simulator's poses at the moment the outcome arrived
+    at = obs.truth_at[(sender, "caught", "r0")]
+    d_true = math.hypot(at[catcher.robot].x - at["r0"].x, at[catcher.robot].y - at["r0"].y)
+    print(f"true distance at the catch: {d_true:.2f} m (capture distance {catcher.capture_distance:g} m)")
+    assert d_true <= catcher.capture_distance + CATCH_SLACK, (d_true, at)
 
     # the prey spins: turning on the spot, not translating
     wait_until(lambda: prey.caught_by == sender, 10, "the prey to hear of its catch")
@@ -256,7 +284,7 @@ def test_two_hunters_catch_the_prey_which_then_spins(hunt):
 
 @pytest.mark.timeout(330)
 def test_advanced_hunters_share_two_prey_by_contract_net_and_catch_both(hunt):
-    sim, lt, host, obs = hunt("hunt_advanced.world", "r2,r3,r4,r5")
+    sim, lt, host, obs, truth = hunt("hunt_advanced.world", "r2,r3,r4,r5", [f"r{i}" for i in range(6)])
     prey = [EscapeAgent(f"prey{i}", robot=f"r{i}", speed=0.2, simulation=True, startup_timeout=60) for i in (0, 1)]
     hunters = [
         FollowAgent(f"hunter{i}", robot=f"r{i}", allocation="contract_net", startup_timeout=60) for i in (2, 3, 4, 5)
@@ -264,13 +292,49 @@ def test_advanced_hunters_share_two_prey_by_contract_net_and_catch_both(hunt):
     t0 = time.monotonic()
     _start_all(lt, host, [*prey, *hunters])
 
-    # the allocation: every prey gets hunters, every hunter a prey (two each: ceil(4 / 2))
-    wait_until(lambda: all(h.prey for h in hunters), 30, "every hunter to be given a prey")
+    # the allocation: every prey gets hunters, every hunter a prey (two each: ceil(4 / 2)); each
+    # award is recorded with the true poses and the hunters free just before and just after it
+    awards: list[tuple[str, str, dict[str, Position], set[str], set[str]]] = []
+    before = {h.id: h.prey for h in hunters}
+
+    def allocated() -> bool:
+        poses = truth.poses()
+        now = {h.id: h.prey for h in hunters}
+        free_before = {k for k, v in before.items() if not v}
+        free_after = {k for k, v in now.items() if not v}
+        awards.extend((k, now[k], poses, free_before, free_after) for k in now if now[k] and not before[k])
+        before.update(now)
+        return all(now.values())
+
+    wait_until(allocated, 30, "every hunter to be given a prey", interval=0.005)
     first = {h.id: h.prey for h in hunters}
     assert sorted(first.values()) == ["r0", "r0", "r1", "r1"], first
+    # nearest first, on true distances at the award: the auctioneer (lowest id) takes its nearest
+    # prey; every other award went to the hunter truly nearest the prey among those still free
+    robot = {h.id: h.robot for h in hunters}
+
+    def d(poses, a, b):
+        return math.hypot(poses[a].x - poses[b].x, poses[a].y - poses[b].y)
+
+    auctioneer = min(robot)
+    for who, got, poses, free_before, free_after in awards:
+        if who == auctioneer:
+            nearest = min(d(poses, robot[who], p) for p in ("r0", "r1"))
+            assert d(poses, robot[who], got) <= nearest + AWARD_SLACK, (who, got, poses)
+            continue
+        rivals = (free_before & free_after) - {who}
+        for r in rivals:
+            assert d(poses, robot[who], got) <= d(poses, robot[r], got) + AWARD_SLACK, (who, got, r, poses)
+    print("awards (hunter, prey, true distance m):", [(w, g, round(d(p, robot[w], g), 1)) for w, g, p, _, _ in awards])
 
     wait_until(lambda: obs.caught() == {"r0", "r1"}, 240, "the hunters to catch both prey")
     print(f"both caught after {time.monotonic() - t0:.1f} s wall: {[o.text for _, o in obs.events('caught')]}")
+    # every catch true: the catcher within its capture distance of the prey in the simulator
+    for sender, o in obs.events("caught"):
+        catcher = next(h for h in hunters if h.id == sender)
+        at = obs.truth_at[(sender, "caught", o.subject)]
+        d_true = d(at, catcher.robot, o.subject)
+        assert d_true <= catcher.capture_distance + CATCH_SLACK, (sender, o.subject, d_true, at)
     wait_until(lambda: all(p.caught_by for p in prey), 10, "both prey to hear of their catch")
     # nobody chases a caught prey
     wait_until(lambda: all(not h.prey for h in hunters), 10, "every hunter to end its chase")

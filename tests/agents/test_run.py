@@ -72,6 +72,10 @@ def test_wander_demo_runs_for_its_duration_and_succeeds(procs):
     assert "[run] agent wf0 is up" in out
     assert re.search(r"\[run\] t=[\d.]+ s agents 1/1 alive, [\d.]+/20 s", out)
     assert "[run] result: ok — ran 20 s with every agent started and no failed outcome" in out
+    # judged on ground truth (the file's end: travel 2 m, clearance 0.4 m): r0 really drove, off the walls
+    m = re.search(r"\(ground truth: r0 travelled ([\d.]+) m, nearest wall ([\d.]+) m\)", out)
+    assert m, out
+    assert float(m.group(1)) >= 2.0 and float(m.group(2)) >= 0.4, m.group(0)
     assert re.search(r"\[run\] elapsed [\d.]+ s; agents started 1/1; outcomes: none", out)
     assert "[host wf0] on the simulation's clock (RSAL_SIM_TIME=sim)" in out
     wall = float(re.search(r"times on the simulation's clock \(([\d.]+) s of wall time\)", out).group(1))
@@ -79,6 +83,25 @@ def test_wander_demo_runs_for_its_duration_and_succeeds(procs):
     assert "[host wf0] wf0 stopped (SIGTERM)" in out  # hosts stopped before the simulator
     assert out.index("[host wf0] wf0 stopped") < out.index("[sim] summary")
     assert "Traceback" not in out
+
+
+def test_a_robot_that_does_not_move_fails_a_travel_end_on_ground_truth(procs, tmp_path):
+    # the Reporter agent holds robot r0 but never drives it: 20 quiet seconds are no wander
+    f = scenario(
+        tmp_path,
+        f"""
+        still:
+          simulator: {{world: {MAPS / "testroom.world"}}}
+          agents:
+            - {{type: rep, robot: r0, id: still0, args: {{event: noise, subjects: [x], every: 5.0}}}}
+          end: {{duration: 4, travel: 0.5, clearance: 0.4, timeout: 90}}
+        """,
+    )
+    p = procs(rsal_cmd("run", str(f), "--app", "still", "--speedup", "4"))
+    out = finished(p, 120, "rsal run to end the still scenario")
+    assert p.p.returncode == 1, out
+    assert "[run] result: FAILED — ground truth: r0 travelled 0.00 m (< travel 0.5 m)" in out, out
+    assert "rsal run: ground truth: r0 travelled 0.00 m (< travel 0.5 m)" in out
 
 
 def test_run_ends_as_soon_as_the_count_of_distinct_subjects_is_reached(procs, tmp_path):

@@ -17,7 +17,8 @@ from rsal.client import Fabric
 from rsal.clock import clock
 from rsal.data import BlobfinderBlob, Position
 from rsal.devices import Simulation
-from rsal.robot import ExploreRobot, Robot
+from rsal.interfaces.position2d import Position2d
+from rsal.robot import ExploreRobot, Robot, RobotError
 
 from .messages import BLOB, BlobReport
 from .messages import check_number as _number
@@ -28,14 +29,24 @@ log = logging.getLogger(__name__)
 
 
 class _Explorer(ExploreRobot):
-    """An ExploreRobot whose map pose may come from the simulation (thesis 3.6.2.2: a robot aware of
-    its simulation): ``truth`` set to the simulation device makes it read its true pose each cycle."""
+    """An ExploreRobot whose map pose comes from its localizer: ``localized``, the localizer's
+    position2d (amcl's position2d:2: the estimate moved on by odometry at the odometry's rate), else
+    the localize device's own estimate (only as fresh as the filter's last update, every 0.2 m or
+    30 degrees: a blob 3 m away seen 30 degrees off would land 1.5 m astray). With a localizer and
+    no estimate yet the pose is unknown: no blob is placed in the odometry's frame. Without a
+    localizer, ``truth`` set to the simulation device makes it read its true pose each cycle
+    (thesis 3.6.2.2: a robot aware of its simulation), else the odometry is used."""
 
     truth: Simulation | None = None
     _truth_pose: Position | None = None
+    localized: Position2d | None = None
 
     @property
     def position(self) -> Position | None:
+        if self.localize is not None:
+            if self.localized is not None and self.localized.latest is not None:
+                return self.localized.position
+            return getattr(self.localize, "position", None)
         if self.truth is not None and self._truth_pose is not None:
             return self._truth_pose
         return super().position
@@ -81,7 +92,24 @@ class ExploreAgent(WallfollowAgent):
         self._next_repeat = 0.0
 
     def make_robot(self, devices: list) -> Robot:
-        return _Explorer(devices, name=self.robot, period=self.period, laser=self.laser, merge_dist=self.merge_dist)
+        base = [d for d in devices if d.interface == "position2d" and d.index == self.index]
+        if not base:
+            raise RobotError(f"robot {self.robot!r}: no position2d:{self.index} device (its base) yet")
+        rest = [d for d in devices if d.interface != "position2d"]
+        robot = _Explorer(
+            base + rest, name=self.robot, period=self.period, laser=self.laser, merge_dist=self.merge_dist
+        )
+        if robot.localize is not None:  # the localizer's own position2d (frame map), as NavRobot finds it
+            for d in devices:
+                if d.interface != "position2d" or d is base[0]:
+                    continue
+                try:
+                    if d.describe(timeout=5.0).geometry.get("frame") == "map":
+                        robot.localized = d
+                        break
+                except Exception as e:  # a silent device is simply not used
+                    log.debug("%s: no describe: %s", d.addr, e)
+        return robot
 
     async def find_robot(self, fabric: Fabric) -> Robot:
         robot = await super().find_robot(fabric)

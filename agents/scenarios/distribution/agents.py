@@ -352,7 +352,8 @@ class DispersionAgent(Agent):
         robot = self.participants[agent]
         p = self.position_of(robot)
         dist = f", {math.hypot(x - p.x, y - p.y):.1f} m away" if p is not None else ""
-        self.publish(Outcome.SERVICE, Outcome("assigned", robot, f"{robot} -> target {i} ({x:.1f}, {y:.1f}){dist}"))
+        text = f"{robot} -> target {i} ({x:.1f}, {y:.1f}){dist}"
+        self.publish(Outcome.SERVICE, Outcome("assigned", robot, text, at=(float(x), float(y))))
 
     def reassign(self) -> None:
         """Assign the live agents, from where they are now, to the first k targets (k live agents);

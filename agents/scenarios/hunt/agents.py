@@ -15,10 +15,12 @@ the capability ``prey``, located by their ``send_position``), gives each an equa
 hunters (``ceil(hunters / prey)``), takes the nearest prey short of hunters for itself when it is free,
 and announces the other places one ``cfp`` at a time (task: the prey and where it is). A free hunter
 bids its straight-line distance to the prey, a busy one refuses, so the nearest free hunter wins
-("nearest first"). The winner chases until the prey is caught, by anyone, and then answers
-``inform-done``; nobody chases a caught prey. A hunter answers only the auctioneer's calls and bids
-only for prey it knows (offered ``prey`` on ``hello`` and broadcast a position), so a forged call
-for an unknown prey (a "ghost") commits nobody (``docs/security.md``, "Open fabric").
+("nearest first"); the auctioneer allocates once every hunter it knows has broadcast a map position
+(it could not bid before it is localized), or after ``ALLOCATION_GRACE`` seconds. The winner chases
+until the prey is caught, by anyone, and then answers ``inform-done``; nobody chases a caught prey.
+A hunter answers only the auctioneer's calls and bids only for prey it knows (offered ``prey`` on
+``hello`` and broadcast a position), so a forged call for an unknown prey (a "ghost") commits nobody
+(``docs/security.md``, "Open fabric").
 """
 
 from __future__ import annotations
@@ -43,6 +45,9 @@ from .messages import HUNT_SERVICE
 __all__ = ["EscapeAgent", "FollowAgent"]
 
 log = logging.getLogger(__name__)
+
+#: seconds the auctioneer waits for every hunter's first map position before it allocates anyway
+ALLOCATION_GRACE = 10.0
 
 
 @agent_class("FollowAgent")
@@ -82,6 +87,8 @@ class FollowAgent(NavAgent):
         self.catches = 0  # prey this hunter caught
         self.prey_robots: set[str] = {prey} if prey else set()
         self.hunters: list[str] = []  # hunter agent ids seen on hello (contract net)
+        self.hunter_robots: dict[str, str] = {}  # hunter agent id -> its robot (hello)
+        self._waiting_since: float | None = None  # auctioneer: since when a hunter has no position yet
         self._chase_goal: Position | None = None
         self._last_plan = -math.inf
         self._backoff = 0  # chase goals refused in a row
@@ -166,6 +173,7 @@ class FollowAgent(NavAgent):
         """Who hunts and what is prey (hello), for the allocation."""
         hellos: list[Hello] = await self.host.who_is_there(timeout=0.5)
         self.hunters = sorted(h.id for h in hellos if "hunter" in h.capabilities)
+        self.hunter_robots = {h.id: h.robot for h in hellos if "hunter" in h.capabilities}
         self.prey_robots |= {h.robot for h in hellos if "prey" in h.capabilities and h.robot}
 
     async def _allocation_loop(self) -> None:
@@ -183,6 +191,16 @@ class FollowAgent(NavAgent):
         prey = sorted(p for p in self.prey_robots if p not in self.caught and p in self.positions)
         if not prey or not self.hunters:
             return
+        # Nearest first needs every hunter's bid, and a hunter bids only once it is localized: wait
+        # until each known hunter has broadcast a map position (at most ALLOCATION_GRACE seconds,
+        # so a hunter that never localizes does not stop the hunt).
+        unplaced = [h for h, r in self.hunter_robots.items() if r and r not in self.positions]
+        if unplaced:
+            now = clock().now()
+            self._waiting_since = now if self._waiting_since is None else self._waiting_since
+            if now - self._waiting_since < ALLOCATION_GRACE:
+                log.debug("%s: waiting for the positions of %s", self.id, ", ".join(unplaced))
+                return
         share = math.ceil(len(self.hunters) / len(prey))
         if not self.prey:  # the auctioneer hunts too: the nearest prey short of hunters
             me = self.nav.position

@@ -1,0 +1,195 @@
+"""Ground-truth verdicts of ``rsal run``: what the agents claim, checked against the simulator.
+
+The design's rule: verdicts come from ground truth or from authenticated peers, never from a message
+any peer could have sent. An agent's ``outcome`` is a claim made from its own beliefs (an AMCL pose,
+another agent's broadcast); when the application runs a simulator, :class:`GroundTruth` asks the
+simulation device (``sim:simulation:0``, rpc ``get_pose``; the thesis's ``getPositionOf``) where
+the robots really are at the moment a claim arrives, and the runner counts it only if the truth
+agrees:
+
+- ``caught`` (subject: the prey's robot; sender: a hunter agent with a robot): the hunter's robot
+  truly within its ``capture_distance`` (the agent's argument, else its class's default) plus
+  :data:`CATCH_SLACK` of the prey;
+- ``arrived`` with a place (``Outcome.at``, the goal): the subject robot truly within
+  :data:`ARRIVE_TOLERANCE` of it;
+- an ok final ``verdict`` after ``assigned`` outcomes with places (Distribution, thesis 4.2.4):
+  every assigned robot truly within :data:`ARRIVE_TOLERANCE` of its last assigned target;
+- a ``duration`` run with ``end.travel`` / ``end.clearance``: the true poses of every agent's robot,
+  sampled every :data:`SAMPLE_PERIOD` seconds, must add up to at least ``travel`` metres each and
+  keep the robot's centre at least ``clearance`` metres from every occupied cell of the map
+  (``sim:map:0``, its Euclidean distance transform, ``scipy.ndimage.distance_transform_edt``).
+
+A claim the truth contradicts counts as a failed outcome, with the reason in one line.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+
+from .scenario import Application, Scenario
+
+__all__ = ["ARRIVE_TOLERANCE", "CATCH_SLACK", "SAMPLE_PERIOD", "GroundTruth"]
+
+#: m beyond the capture distance a true catch may lie: the hunter judges on its AMCL pose (the
+#: thesis's 0.30 m) against the prey's last broadcast (2 Hz at 0.2 m/s: 0.1 m old at most), and the
+#: fleeing prey moves on while the outcome travels (0.1 m)
+CATCH_SLACK = 0.5
+#: m between a robot that arrived and its goal: Wavefront's 0.4 m goal tolerance plus the thesis's
+#: 0.30 m localization requirement
+ARRIVE_TOLERANCE = 0.7
+#: seconds between true-pose samples of a duration run
+SAMPLE_PERIOD = 0.5
+SIM_DEVICE = "sim:simulation:0"
+MAP_DEVICE = "sim:map:0"
+
+
+def _default(cls_name: str, arg: str) -> float | None:
+    """The default of ``arg`` in the constructor of the agent class ``cls_name`` (None if it has none)."""
+    from .registry import resolve
+
+    try:
+        p = inspect.signature(resolve(cls_name)).parameters.get(arg)
+    except Exception:
+        return None
+    return None if p is None or p.default is inspect.Parameter.empty else p.default
+
+
+class GroundTruth:
+    """Checks ``app``'s outcomes against the simulator on the runner's ``session``."""
+
+    def __init__(self, session, sc: Scenario, app: Application, *, sim=None, get_map=None):
+        """``sim`` (a :class:`rsal.interfaces.simulation.Simulation`-like ``get_pose``) and ``get_map``
+        (returns a :class:`rsal.interfaces.map.MapData`) replace the devices on ``session`` (tests)."""
+        self.fabric = None
+        if sim is None or get_map is None:
+            from rsal.client import Fabric
+
+            self.fabric = Fabric(session, own_session=False)
+        self.sim = sim or self.fabric.device(SIM_DEVICE)
+        self.get_map = get_map or (lambda: self.fabric.device(MAP_DEVICE).get_map(timeout=10.0))
+        self.sc, self.app, self.end = sc, app, app.end
+        self.agents = {a.id: a for a in app.agents}
+        self.robots = sorted({a.robot for a in app.agents if a.robot})
+        self.assigned: dict[str, tuple[float, float]] = {}  # robot -> its last assigned target
+        self.note = ""  # what the truth showed for the last confirmed verdict
+        self.travelled: dict[str, float] = {}
+        self.nearest_wall: dict[str, float] = {}
+        self._last: dict[str, tuple[float, float]] = {}
+        self._clear: tuple | None = None  # (distance grid m, origin, resolution)
+
+    @property
+    def samples(self) -> bool:
+        """Whether the run needs true poses sampled (``end.travel`` or ``end.clearance``)."""
+        return self.end.travel is not None or self.end.clearance is not None
+
+    def _where(self, robot: str) -> tuple[float, float]:
+        p = self.sim.get_pose(robot)
+        return p.x, p.y
+
+    # ------------------------------------------------------------------ claims
+    def check(self, sender: str, o) -> str | None:
+        """Why the outcome ``o`` from ``sender`` is false by ground truth, or None (true, or not a
+        claim the truth can judge); a confirmed verdict leaves what the truth showed in ``note``."""
+        self.note = ""
+        try:
+            if o.event == "assigned" and o.at is not None:
+                self.assigned[o.subject] = o.at
+            elif o.event == "caught" and o.ok:
+                return self._caught(sender, o)
+            elif o.event == "arrived" and o.ok and o.at is not None:
+                d = math.dist(self._where(o.subject), o.at)
+                if d > ARRIVE_TOLERANCE:
+                    where = f"{d:.2f} m from its goal {_xy(o.at)}"
+                    return f"ground truth: {o.subject} is {where} (> {ARRIVE_TOLERANCE:g} m)"
+            elif o.event == "verdict" and o.final and o.ok and self.assigned:
+                far, seen = [], []
+                for robot, at in sorted(self.assigned.items()):
+                    d = math.dist(self._where(robot), at)
+                    seen.append(f"{robot} {d:.2f} m")
+                    if d > ARRIVE_TOLERANCE:
+                        far.append(f"{robot} {d:.2f} m from {_xy(at)}")
+                if far:
+                    return f"ground truth: not at the assigned target (> {ARRIVE_TOLERANCE:g} m): {', '.join(far)}"
+                self.note = f"ground truth: {', '.join(seen)} from the assigned targets"
+        except Exception as e:  # the simulation did not answer: no verdict on beliefs either
+            return f"ground truth unavailable for {o.event} {o.subject!r}: {type(e).__name__}: {e}"
+        return None
+
+    def _caught(self, sender: str, o) -> str | None:
+        hunter = self.agents.get(sender)
+        if hunter is None or not hunter.robot:
+            return None
+        cap = hunter.args.get("capture_distance", self.sc.arguments.get("capture_distance"))
+        if cap is None:
+            cap = _default(hunter.cls, "capture_distance")
+        if cap is None:
+            return None
+        d = math.dist(self._where(hunter.robot), self._where(o.subject))
+        if d > cap + CATCH_SLACK:
+            return (
+                f"ground truth: {hunter.robot} is {d:.2f} m from the prey {o.subject} "
+                f"(capture distance {cap:g} m + {CATCH_SLACK:g} m)"
+            )
+        self.note = f"ground truth: {hunter.robot} {d:.2f} m from {o.subject} at the catch"
+        return None
+
+    # ------------------------------------------------------------------ duration runs
+    def _load_clearance(self) -> None:
+        from scipy.ndimage import distance_transform_edt
+
+        m = self.get_map()
+        dist = distance_transform_edt(m.cells != 1) * m.resolution
+        self._clear = (dist, m.origin, m.resolution)
+
+    def wall_distance(self, x: float, y: float) -> float:
+        """Metres from (x, y) to the nearest occupied cell of the map (0 outside the map)."""
+        dist, (ox, oy), res = self._clear
+        col, row = int(math.floor((x - ox) / res)), int(math.floor((y - oy) / res))
+        if not (0 <= row < dist.shape[0] and 0 <= col < dist.shape[1]):
+            return 0.0
+        return float(dist[row, col])
+
+    def sample(self) -> None:
+        """One true pose per robot: distance travelled and the nearest wall so far."""
+        if self.end.clearance is not None and self._clear is None:
+            self._load_clearance()
+        for r in self.robots:
+            x, y = self._where(r)
+            if r in self._last:
+                self.travelled[r] = self.travelled.get(r, 0.0) + math.dist(self._last[r], (x, y))
+            self._last[r] = (x, y)
+            if self._clear is not None:
+                self.nearest_wall[r] = min(self.nearest_wall.get(r, math.inf), self.wall_distance(x, y))
+
+    def problems(self) -> list[str]:
+        """What the sampled truth says against the run's ``travel`` and ``clearance``."""
+        out = []
+        for r in self.robots:
+            if self.end.travel is not None and self.travelled.get(r, 0.0) < self.end.travel:
+                out.append(f"{r} travelled {self.travelled.get(r, 0.0):.2f} m (< travel {self.end.travel:g} m)")
+            if self.end.clearance is not None and self.nearest_wall.get(r, 0.0) < self.end.clearance:
+                out.append(
+                    f"{r} came {self.nearest_wall.get(r, 0.0):.2f} m from a wall (< clearance {self.end.clearance:g} m)"
+                )
+        return out
+
+    def summary(self) -> str:
+        parts = []
+        for r in self.robots:
+            bits = []
+            if r in self.travelled:
+                bits.append(f"travelled {self.travelled[r]:.1f} m")
+            if r in self.nearest_wall:
+                bits.append(f"nearest wall {self.nearest_wall[r]:.2f} m")
+            if bits:
+                parts.append(f"{r} {', '.join(bits)}")
+        return "; ".join(parts)
+
+    def close(self) -> None:
+        if self.fabric is not None:
+            self.fabric.close()
+
+
+def _xy(at) -> str:
+    return f"({at[0]:.2f}, {at[1]:.2f})"

@@ -1,0 +1,120 @@
+"""rsal run's ground-truth verdicts (:mod:`agents.verdict`) against an in-memory simulation: claims
+the true poses contradict are refused with the reason, true ones pass; a duration run's travel and
+wall clearance come from sampled true poses and the map's distance transform."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from agents.scenario import load_scenario
+from agents.services import Outcome
+from agents.verdict import ARRIVE_TOLERANCE, CATCH_SLACK, GroundTruth
+from rsal.data import Position
+from rsal.interfaces.map import MapData
+
+SCENARIO = """
+scenario: t
+agent_types: {hunter: FollowAgent, prey: EscapeAgent, nav: NavAgent, wf: WallfollowAgent}
+applications:
+  hunt:
+    simulator: {world: w.world}
+    agents:
+      - {type: prey, robot: r0}
+      - {type: hunter, robot: r1, id: h1, args: {prey: r0}}
+      - {type: hunter, robot: r2, id: h2, args: {prey: r0, capture_distance: 2.0}}
+      - {type: nav, robot: r3, id: n3}
+    end: {event: caught}
+  wander:
+    simulator: {world: w.world}
+    agents:
+      - {type: wf, robot: r0, id: wf0}
+    end: {duration: 10, travel: 1.0, clearance: 0.5}
+"""
+
+
+class FakeSim:
+    def __init__(self, poses):
+        self.poses = dict(poses)
+
+    def get_pose(self, name):
+        return Position(*self.poses[name], 0.0)
+
+
+def room() -> MapData:
+    """A 4 m x 4 m room at 0.1 m per cell, walls one cell thick, origin (-2, -2)."""
+    cells = -np.ones((40, 40), dtype=np.int8)
+    cells[0, :] = cells[-1, :] = cells[:, 0] = cells[:, -1] = 1
+    return MapData(40, 40, 0.1, (-2.0, -2.0), cells)
+
+
+@pytest.fixture
+def sc(tmp_path):
+    (tmp_path / "w.world").write_text("")
+    p = tmp_path / "s.yaml"
+    p.write_text(SCENARIO)
+    return load_scenario(p)
+
+
+def judge(sc, app, poses):
+    sim = FakeSim(poses)
+    return GroundTruth(None, sc, sc.applications[app], sim=sim, get_map=room), sim
+
+
+def test_a_catch_counts_only_within_the_capture_distance_on_ground_truth(sc):
+    g, sim = judge(sc, "hunt", {"r0": (0.0, 0.0), "r1": (1.0 + CATCH_SLACK - 0.05, 0.0), "r2": (5.0, 0.0)})
+    assert g.check("h1", Outcome("caught", "r0", "prey r0 caught by r1")) is None
+    assert g.note == "ground truth: r1 1.45 m from r0 at the catch"
+    why = g.check("h2", Outcome("caught", "r0", "prey r0 caught by r2"))  # its own capture distance, 2 m
+    assert why == "ground truth: r2 is 5.00 m from the prey r0 (capture distance 2 m + 0.5 m)"
+    sim.poses["r1"] = (3.0, 4.0)  # the class default, 1 m, for h1
+    assert "r1 is 5.00 m from the prey r0 (capture distance 1 m" in g.check("h1", Outcome("caught", "r0", "x"))
+    assert g.check("stranger", Outcome("caught", "r0", "x")) is None  # no robot known: nothing to judge
+
+
+def test_arrival_and_a_distribution_verdict_are_judged_by_true_distance(sc):
+    g, sim = judge(sc, "hunt", {"r3": (1.0, 1.0), "r1": (0.0, 0.0)})
+    assert g.check("n3", Outcome("arrived", "r3", "r3 arrived", at=(1.0, 1.0 + ARRIVE_TOLERANCE - 0.05))) is None
+    why = g.check("n3", Outcome("arrived", "r3", "r3 arrived", at=(4.0, 5.0)))
+    assert why == f"ground truth: r3 is 5.00 m from its goal (4.00, 5.00) (> {ARRIVE_TOLERANCE:g} m)"
+    assert g.check("n3", Outcome("arrived", "r3", "no goal")) is None  # no place claimed
+    assert g.check("d", Outcome("assigned", "r3", "r3 -> target 0", at=(1.0, 1.2))) is None
+    assert g.check("d", Outcome("assigned", "r1", "r1 -> target 1", at=(3.0, 0.0))) is None
+    why = g.check("d", Outcome("verdict", "distribution", "2 robots reached 2 targets", final=True))
+    assert why == f"ground truth: not at the assigned target (> {ARRIVE_TOLERANCE:g} m): r1 3.00 m from (3.00, 0.00)"
+    sim.poses["r1"] = (3.0, 0.3)
+    assert g.check("d", Outcome("verdict", "distribution", "ok", final=True)) is None
+    assert g.note == "ground truth: r1 0.30 m, r3 0.20 m from the assigned targets"
+
+
+def test_duration_run_travel_and_wall_clearance_from_sampled_truth(sc):
+    g, sim = judge(sc, "wander", {"r0": (0.0, 0.0)})
+    assert g.samples and g.robots == ["r0"]
+    g.sample()
+    assert g.nearest_wall["r0"] == pytest.approx(1.9, abs=0.11)  # the walls' inner cells at +-1.9 m
+    assert g.wall_distance(-1.75, 0.0) == pytest.approx(0.2, abs=0.11) and g.wall_distance(9.0, 0.0) == 0.0
+    assert g.problems() == ["r0 travelled 0.00 m (< travel 1 m)"]  # standing still fails
+    for x in (0.3, 0.6, 0.9, 1.2):
+        sim.poses["r0"] = (x, 0.0)
+        g.sample()
+    assert g.travelled["r0"] == pytest.approx(1.2) and g.problems() == []
+    sim.poses["r0"] = (1.6, 0.0)  # 0.3 m from the east wall's cells
+    g.sample()
+    (p,) = g.problems()
+    assert p.startswith("r0 came 0.") and p.endswith("m from a wall (< clearance 0.5 m)")
+    assert math.isclose(g.travelled["r0"], 1.6)
+    assert "r0 travelled 1.6 m, nearest wall 0." in g.summary()
+
+
+def test_truth_keys_need_a_simulator(tmp_path):
+    from agents.scenario import ScenarioError
+
+    p = tmp_path / "s.yaml"
+    p.write_text(
+        "scenario: t\nagent_types: {wf: WallfollowAgent}\napplications:\n  a:\n"
+        "    agents: [{type: wf, robot: r0}]\n    end: {duration: 5, travel: 1}\n"
+    )
+    with pytest.raises(ScenarioError, match=r"applications\.a\.end\.travel.*ground truth; add a 'simulator'"):
+        load_scenario(p)
