@@ -378,7 +378,8 @@ class Amcl:
 
     # ------------------------------------------------------------------ measurement
     def _surface_distance(self) -> np.ndarray:
-        """Metres from each cell centre to the nearest obstacle surface, outside and inside obstacles.
+        """Metres from each cell centre to the nearest obstacle surface, outside and inside obstacles
+        (unknown cells count as obstacles).
 
         The grid's distance field runs between cell centres and is 0 anywhere inside an obstacle,
         which rewards poses whose beams end deep inside thick walls (a bias of up to a wall's
@@ -386,12 +387,21 @@ class Amcl:
         occupied cell counts its depth below the surface, so the true pose scores best.
         """
         g = self.grid
-        if not g.occupied.any():
+        # Unknown cells (neither free nor occupied: a built map's unexplored space, which begins
+        # right behind every wall it saw) count as obstacles: a beam can only have ended where the
+        # map has no free space. Maps without unknown cells are unchanged. Counted as free instead,
+        # the gaps of a built map's thinly seen walls lower the fit at the true pose enough for
+        # Augmented MCL's recovery to take over (docs/mapping.md: a second tour diverged by metres).
+        blocked = ~g.free
+        if not blocked.any():
             return np.full(g.occupied.shape, 1e6)
         half = 0.5 * g.resolution
-        out = g.distance.astype(np.float64) - half
-        depth = ndimage.distance_transform_edt(g.occupied) * g.resolution - half
-        return np.where(g.occupied, depth, out)
+        if np.array_equal(blocked, g.occupied):  # no unknown cells: the grid's own field
+            out = g.distance.astype(np.float64) - half
+        else:
+            out = ndimage.distance_transform_edt(~blocked) * g.resolution - half
+        depth = ndimage.distance_transform_edt(blocked) * g.resolution - half
+        return np.where(blocked, depth, out)
 
     def _field(self, range_max: float) -> np.ndarray:
         """Log-likelihood of a beam endpoint per cell, padded by one far cell on every side."""

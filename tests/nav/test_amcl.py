@@ -544,3 +544,18 @@ def test_kidnapped_robot_recovers_through_random_particles(floor_spec):
         recover.append((len(errors) - 100) * w.spec.interval_sim)
     print(f"\nkidnapping: per-seed recovery time (s) {np.round(recover, 1).tolist()}")
     assert max(recover) <= 60.0, recover
+
+
+def test_unknown_cells_bound_the_likelihood_field_as_walls_do():
+    """A built map's unexplored space starts right behind the walls it saw: a beam ending in unknown
+    space scores as a hit on a wall, and a map without unknown cells keeps the grid's own field."""
+    free = np.full((40, 40), -1, dtype=np.int8)
+    free[:, 30:] = 0  # unexplored east of x = 1.5 m
+    walled = free.copy()
+    walled[:, 30:] = 1  # the same space as a wall
+    a, b = Amcl(NavGrid(free, 0.05, (0.0, 0.0))), Amcl(NavGrid(walled, 0.05, (0.0, 0.0)))
+    np.testing.assert_allclose(a._surface_distance(), b._surface_distance())
+    assert a._surface_distance()[20, 29] == pytest.approx(0.025)  # half a cell from the boundary
+    known = np.where(walled > 0, 1, -1).astype(np.int8)
+    g = NavGrid(known, 0.05, (0.0, 0.0))
+    np.testing.assert_allclose(Amcl(g)._surface_distance()[g.free], g.distance[g.free] - 0.025)
