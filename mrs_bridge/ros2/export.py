@@ -8,8 +8,10 @@ For every robot the fabric discovers (liveliness of ``rsal/<robot>/position2d/0`
   (``scan_<i>`` for ``laser:<i>``);
 - publishes ``/<robot>/sonar_<k>`` (``sensor_msgs/msg/Range``) per transducer of ``sonar:0``;
 - publishes ``/<robot>/odom`` (``nav_msgs/msg/Odometry``) from ``position2d:0`` and, with each
-  odometry message, ``/tf`` (``tf2_msgs/msg/TFMessage``): ``odom -> base_link`` and
-  ``base_link -> laser`` (the laser's mount from its ``describe`` geometry);
+  odometry message, ``/tf`` (``tf2_msgs/msg/TFMessage``): ``odom -> base_link``;
+- publishes ``/tf_static`` (transient local, as tf2's static broadcaster): ``base_link -> laser``
+  and ``base_link -> sonar_<k>`` (the mounts from the sensors' ``describe`` geometry), again
+  whenever a sensor joins or leaves;
 - subscribes ``/<robot>/cmd_vel`` (``geometry_msgs/msg/Twist``) and sends each as the base's
   VelocityCmd (clipped to the base's ``max_speed``): the device server's command timeout stops
   the robot when the Twists stop, as for any RSAL commander;
@@ -60,6 +62,7 @@ __all__ = ["Exporter", "ExportConfig", "ros_namespace"]
 log = logging.getLogger(__name__)
 
 TF_QOS = QoS(depth=100)  # tf2_ros's TransformBroadcaster: reliable, keep last 100
+TF_STATIC_QOS = QoS(durability=1, depth=1)  # tf2_ros StaticTransformBroadcaster: transient local, keep last 1
 
 
 @dataclass(frozen=True)
@@ -129,6 +132,7 @@ class _Robot:
     sonars: dict[int, _Sonar] = field(default_factory=dict)
     localize: _Nav | None = None
     planner: _Nav | None = None
+    static: Publisher | None = None  # /tf_static: base_link -> each sensor, made with the first sensor
 
     def topics(self) -> list[str]:
         t = [lz.pub.entity.topic.rsplit("/", 1)[-1] for _, lz in sorted(self.lasers.items())]
@@ -247,11 +251,7 @@ class Exporter:
         post = self.outbox.post
 
         def build_tf(data):
-            tfs = [(f_odom, f_base, data.pose)]
-            tfs += [(f_base, lz.frame, lz.mount) for lz in list(r.lasers.values())]
-            for so in list(r.sonars.values()):
-                tfs += [(f_base, f, m) for f, m in zip(so.frames, so.mounts, strict=True)]
-            return types.tf_message(data.t, tfs)
+            return types.tf_message(data.t, [(f_odom, f_base, data.pose)])
 
         def on_odom(data) -> None:
             post(odom, lambda d: types.odometry(d, f_odom, f_base), data)
@@ -325,6 +325,20 @@ class Exporter:
 
         r.lasers[addr.index] = _Laser(addr, proxy, pub, frame, mount, on_scan)
         proxy.add_listener(on_scan, inline=True)
+        self._publish_static(r)
+
+    def _publish_static(self, r: _Robot) -> None:
+        """Put the robot's sensor mounts (``base_link -> laser``, ``-> sonar_<k>``) on ``/tf_static``,
+        transient local as tf2's static broadcaster does: a late listener gets the latest set."""
+        f_base = self._frame(r.name, "base_link")
+        tfs = [(f_base, lz.frame, lz.mount) for lz in list(r.lasers.values())]
+        for so in list(r.sonars.values()):
+            tfs += [(f_base, f, m) for f, m in zip(so.frames, so.mounts, strict=True)]
+        if r.static is None:
+            if not tfs:
+                return
+            r.static = r.node.publisher("/tf_static", "tf2_msgs/msg/TFMessage", TF_STATIC_QOS)
+        self.outbox.post(r.static, lambda items: types.tf_message(0.0, items), tfs)
 
     def _join_sonar(self, addr: DeviceAddr) -> None:
         r = self._robot(addr.node)
@@ -348,6 +362,7 @@ class Exporter:
 
         r.sonars[addr.index] = _Sonar(addr, proxy, pubs, frames, poses, on_scan)
         proxy.add_listener(on_scan, inline=True)
+        self._publish_static(r)
 
     def _leave(self, addr: DeviceAddr) -> None:
         r = self._robots.get(addr.node)
@@ -380,7 +395,11 @@ class Exporter:
                     e.close()
         else:
             return
+        if addr.interface in ("laser", "sonar") and not r.empty():
+            self._publish_static(r)
         if r.empty():
+            if r.static is not None:
+                r.static.close()
             r.node.close()
             with self._lock:
                 self._robots.pop(r.name, None)

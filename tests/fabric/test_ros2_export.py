@@ -149,6 +149,7 @@ def test_graph_tokens_show_the_node_its_publishers_and_subscription(fleet):
         (Kind.PUBLISHER, "/r0/scan", "sensor_msgs::msg::dds_::LaserScan_"),
         (Kind.PUBLISHER, "/r0/odom", "nav_msgs::msg::dds_::Odometry_"),
         (Kind.PUBLISHER, "/tf", "tf2_msgs::msg::dds_::TFMessage_"),
+        (Kind.PUBLISHER, "/tf_static", "tf2_msgs::msg::dds_::TFMessage_"),
         (Kind.SUBSCRIPTION, "/r0/cmd_vel", TWIST_TYPE),
         *((Kind.PUBLISHER, f"/r0/sonar_{k}", "sensor_msgs::msg::dds_::Range_") for k in range(8)),
     }
@@ -572,3 +573,47 @@ def test_the_sonar_ring_is_one_range_topic_per_transducer(fleet):
     assert kind == 0 and f == pytest.approx(fov, rel=1e-6) and lo <= r <= hi  # ULTRASOUND
     wait_until(lambda: round(sec + nsec * 1e-9, 6) in rsal or len(rsal) > 50, 5, "the RSAL sonar reading")
     assert r == pytest.approx(rsal[round(sec + nsec * 1e-9, 6)], rel=1e-6)
+
+
+def decode_tf_message(b: bytes) -> list[tuple[str, str, float, float, float]]:
+    """tf2_msgs/msg/TFMessage, CDR little-endian, read by hand: (parent, child, x, y, yaw) each."""
+    body, o, out = b[4:], 0, []
+
+    def string(o: int) -> tuple[str, int]:
+        o += (-o) % 4
+        (n,) = struct.unpack_from("<I", body, o)
+        return body[o + 4 : o + 4 + n - 1].decode(), o + 4 + n
+
+    (count,) = struct.unpack_from("<I", body, o)
+    o += 4
+    for _ in range(count):
+        o += (-o) % 4 + 8  # stamp: int32 sec, uint32 nanosec
+        parent, o = string(o)
+        child, o = string(o)
+        o += (-o) % 8
+        x, y, _z, _qx, _qy, qz, qw = struct.unpack_from("<7d", body, o)
+        o += 56
+        out.append((parent, child, x, y, 2.0 * math.atan2(qz, qw)))
+    return out
+
+
+def test_sensor_mounts_are_on_tf_static_for_a_late_listener(fleet):
+    """``base_link -> laser`` and ``-> sonar_<k>`` go out once on /tf_static, transient local as tf2's
+    static broadcaster publishes them; a listener that starts long after gets them from the cache."""
+    import zenoh.ext as zext
+
+    from mrs_bridge.ros2 import types
+
+    port, fab, _ = fleet
+    mount = fab.device("r0:laser:0").describe().geometry["pose"][:3]
+    key = "0/tf_static/tf2_msgs::msg::dds_::TFMessage_/" + types.type_hash("tf2_msgs/msg/TFMessage")
+    got: list[bytes] = []
+    with stock_session(port) as s:
+        sub = zext.declare_advanced_subscriber(
+            s, key, lambda m: got.append(m.payload.to_bytes()), history=zext.HistoryConfig(detect_late_publishers=True)
+        )
+        wait_until(lambda: got, 10, "/tf_static from the publisher's cache")
+        sub.undeclare()
+    tfs = {(p, c): (x, y, yaw) for p, c, x, y, yaw in decode_tf_message(got[-1])}
+    assert tfs[("r0/base_link", "r0/laser")] == pytest.approx(tuple(mount), abs=1e-9)
+    assert {c for p, c in tfs if p == "r0/base_link"} == {"r0/laser", *(f"r0/sonar_{k}" for k in range(8))}
