@@ -42,16 +42,12 @@ import threading
 import time
 from pathlib import Path
 
+from loopback import free_port  # benchmarks/loopback.py, beside this script
+
 ROOT = Path(__file__).resolve().parent.parent
 KEY = "bench/raw/laser"
 SAMPLES = 682
 WARMUP = 1.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def zenoh_config(*, listen: str | None = None, connect: str | None = None):

@@ -26,8 +26,6 @@ Usage: ``python benchmarks/bench_record.py [--robots 100] [--hz 10] [--seconds 1
 from __future__ import annotations
 
 import argparse
-import json
-import socket
 import subprocess
 import sys
 import tempfile
@@ -37,29 +35,13 @@ from pathlib import Path
 
 import numpy as np
 import ormsgpack
-import zenoh
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from loopback import free_port, session  # noqa: E402
+
 from rsal.record import Recorder, RecordOptions  # noqa: E402
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def session(listen: str | None = None, connect: str | None = None) -> zenoh.Session:
-    c = zenoh.Config()
-    c.insert_json5("mode", '"peer"')
-    c.insert_json5("scouting/multicast/enabled", "false")
-    if listen:
-        c.insert_json5("listen/endpoints", json.dumps([listen]))
-    if connect:
-        c.insert_json5("connect/endpoints", json.dumps([connect]))
-    return zenoh.open(c)
 
 
 def scan(rng: np.random.Generator, t: float) -> bytes:

@@ -20,9 +20,7 @@ Usage: ``python benchmarks/bench_ros2.py [--robots 100] [--hz 10] [--seconds 10]
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import socket
 import struct
 import subprocess
 import sys
@@ -31,31 +29,15 @@ import time
 from pathlib import Path
 
 import numpy as np
-import zenoh
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from loopback import free_port, session  # noqa: E402
+
 from rsal.interfaces.position2d import Position2dData  # noqa: E402
 from rsal.interfaces.ranger import RangerData  # noqa: E402
 from rsal.msgs import Describe, ok_reply  # noqa: E402
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def session(listen: str | None = None, connect: str | None = None) -> zenoh.Session:
-    c = zenoh.Config()
-    c.insert_json5("mode", '"peer"')
-    c.insert_json5("scouting/multicast/enabled", "false")
-    if listen:
-        c.insert_json5("listen/endpoints", json.dumps([listen]))
-    if connect:
-        c.insert_json5("connect/endpoints", json.dumps([connect]))
-    return zenoh.open(c)
 
 
 def cpu_seconds(pid: int) -> float:
