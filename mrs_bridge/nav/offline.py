@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import profile
 from .amcl import Amcl
 from .amclparams import AmclParams
 from .grid import NavGrid
@@ -38,8 +39,10 @@ def localize_scans(
     grid: NavGrid, scans, start, *, params: AmclParams | None = None, spread=(0.1, 0.1, 0.05)
 ) -> Localized:
     """Run AMCL on ``grid`` over ``scans`` (an :class:`rsal.mapping.reader.Scans`) from a Gaussian
-    belief at ``start`` (x, y, yaw) with standard deviations ``spread`` (m, m, rad)."""
-    amcl = Amcl(grid, params)
+    belief at ``start`` (x, y, yaw) with standard deviations ``spread`` (m, m, rad). ``params``
+    default to the navigation stack's (:data:`mrs_bridge.nav.profile.AMCL`), as ``rsal sim --nav``
+    and the deploy files run the ``amcl`` driver."""
+    amcl = Amcl(grid, params if params is not None else AmclParams.from_dict(profile.AMCL))
     amcl.init_pose(np.asarray(start, dtype=float), np.diag(np.square(spread)))
     mount = np.asarray(scans.mount, dtype=float)
     bearings = np.asarray(scans.angles, dtype=float) + mount[2]
