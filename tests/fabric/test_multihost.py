@@ -13,8 +13,9 @@ While the hunt runs, robot host 2's cable is pulled: r2's devices are reported l
 configured Zenoh lease (plus the keep-alive slack), r2's base, on the simulator host, stops by its
 command timeout once its local planner's commands no longer arrive (simulator ground truth), while
 r1's devices stay and r1 keeps driving;
-when the cable is back, r2's devices return without any process being restarted, and the hunt
-ends with the prey caught.
+when the cable is back, r2's devices return without any process being restarted and r2 drives
+again under its hunter (ground truth); a hunt that ended meanwhile must have ended with the prey
+caught.
 
 The same hunt runs again in the **secured profile** (docs/security.md): ``rsal secure`` makes a
 fleet in a temporary folder with one identity per host (the simulator host for its nodes, robot
@@ -197,9 +198,20 @@ def test_a_robot_host_cut_off_is_lost_the_others_continue_and_it_rejoins(lan, tm
         assert all(p.alive() for p in procs if p is not hunt), "a process died: " + "\n".join(
             p.output()[-500:] for p in procs if not p.alive()
         )
-        wait_until(lambda: not hunt.alive(), 300, "the hunt to end")
-        assert hunt.p.returncode == 0, hunt.output()[-3000:]
-        assert re.search(r"prey r0 caught by r[12] after", hunt.output()), hunt.output()[-2000:]
+        # r2 drives again under its hunter once its host is back (ground truth), unless the hunt is
+        # already over; the whole hunt across hosts is judged by the secured test below
+        back = watch.truths("r2")
+        wait_until(
+            lambda: (
+                not hunt.alive()
+                or (len(watch.truths("r2")) > len(back) and moved(watch.truths("r2")[-1], back[-1]) > 0.2)
+            ),
+            60,
+            "r2 to drive again after its host rejoined",
+        )
+        if not hunt.alive():
+            assert hunt.p.returncode == 0, hunt.output()[-3000:]
+            assert re.search(r"prey r0 caught by r[12] after", hunt.output()), hunt.output()[-2000:]
         print(
             f"r2 lost {lost_after:.1f} s after the cut (lease {LEASE_MS / 1000:g} s); r2 moving at the cut: "
             f"{was_moving}, moved {drift:.3f} m from 1.5 s after it"
