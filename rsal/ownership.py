@@ -101,6 +101,12 @@ def choose(key: str, device: str, replies: list[tuple[str | None, Any]], owners:
     With owners known, replies of other sessions are dropped (counted, logged once per device and
     session). A device nobody claims (a server of another implementation) is answered by whoever
     replies, as long as that is one session. Replies of more than one session are a conflict."""
+    # A reply without a replier is Zenoh's own (the query's timeout, a routing error): it speaks for
+    # no session, and counts only when no session answered at all.
+    local = [r for z, r in replies if z is None]
+    replies = [(z, r) for z, r in replies if z is not None]
+    if not replies and local:
+        return local[0]
     if owners:
         mine = [(z, r) for z, r in replies if z in owners]
         for z, _ in replies:
