@@ -112,3 +112,12 @@ def test_a_device_nobody_claims_is_answered_by_its_one_server(fabric):
     finally:
         q.undeclare()
         token.undeclare()
+
+
+def test_zenohs_own_reply_speaks_for_no_session():
+    """A reply without a replier id (the query's timeout, from Zenoh itself) is no second session:
+    it is the answer only when no session answered."""
+    timeout = RpcError(ErrorCode.TIMEOUT, "Timeout", KEY)
+    assert ownership.choose(KEY, "r0:position2d:0", [(None, timeout)], {"a1"}, 5.0) is timeout
+    assert ownership.choose(KEY, "r0:position2d:0", [(None, timeout), ("a1", {"ok": 1})], {"a1"}, 5.0) == {"ok": 1}
+    assert ownership.choose(KEY, "r0:position2d:0", [("b2", {"ok": 2}), (None, timeout)], set(), 5.0) == {"ok": 2}
