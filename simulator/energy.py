@@ -18,13 +18,14 @@ robot that the world steps with everything else (:meth:`simulator.world.World.st
 Everything is a few numpy operations over all robots (and robots x chargers for docking): no
 Python loop per robot in the step.
 
-Pioneer defaults, from the MobileRobots Pioneer datasheets: the DX bases (2DX, 3DX) carry up to
-three hot-swappable 12 V sealed lead-acid batteries of 7.2 Ah (3 x 12 V x 7.2 Ah = 259.2 Wh =
-933 kJ) and run 8 to 10 hours on them without accessories; the 3AT carries the same three
-batteries and runs 2 to 4 hours (skid steering). The split into a constant draw and a cost of
-motion is ours, chosen so that the datasheet run time comes out at a typical duty:
-:data:`PIONEER_DX` (20 W, 20 J/m, 4 J/rad) lasts 13 h idle and 8.6 h driving at 0.5 m/s;
-:data:`PIONEER_AT` (30 W, 100 J/m, 40 J/rad) 8.6 h idle and 3.2 h at 0.5 m/s. Turning a
+Pioneer defaults, from MobileRobots' Pioneer specifications: the DX bases (2DX, 3DX) carry up to
+three hot-swappable 12 V sealed lead-acid batteries, 252 Wh with all three (907 kJ), and run 8 to
+10 hours on them without accessories; the 3AT carries the same three batteries and runs 2 to 4
+hours (skid steering). The same documents put the base's low-battery alarm at 11.5 V and its
+shut-down at 11.0 V (:mod:`rsal.interfaces.power` reads such voltages as a charge). The split
+into a constant draw and a cost of motion is ours, chosen so that the datasheet run time comes out at a typical duty:
+:data:`PIONEER_DX` (20 W, 20 J/m, 4 J/rad) lasts 12.6 h idle and 8.4 h driving at 0.5 m/s;
+:data:`PIONEER_AT` (30 W, 100 J/m, 40 J/rad) 8.4 h idle and 3.2 h at 0.5 m/s. Turning a
 differential drive in place moves each wheel by half the track per radian, hence the smaller
 per-radian cost; skid steering scrubs its wheels, hence the 3AT's larger one.
 """
@@ -40,8 +41,8 @@ from .spec import BatterySpec, ChargerSpec
 
 __all__ = ["Batteries", "BatteryState", "PIONEER_AT", "PIONEER_CAPACITY", "PIONEER_DX", "battery_problem"]
 
-PIONEER_CAPACITY = 3 * 12.0 * 7.2 * 3600.0
-"""J: three 12 V 7.2 Ah lead-acid batteries (259.2 Wh)."""
+PIONEER_CAPACITY = 252.0 * 3600.0
+"""J: three 12 V sealed lead-acid batteries, 252 Wh (the Pioneer specification's figure)."""
 PIONEER_DX = BatterySpec(capacity=PIONEER_CAPACITY, per_metre=20.0, per_radian=4.0, watts=20.0)
 """Pioneer 2DX / 3DX: 8-10 h run time on three batteries (module docstring)."""
 PIONEER_AT = BatterySpec(capacity=PIONEER_CAPACITY, per_metre=100.0, per_radian=40.0, watts=30.0)

@@ -219,7 +219,7 @@ def fiducial_finder(
 
 def pioneer2dx(name: str, pose: Sequence[float] = (0.0, 0.0, 0.0), *, color: Color = "red") -> ModelSpec:
     """A Pioneer 2DX base: 0.44 x 0.38 x 0.22 m, 23 kg, 1.0 m/s and 100 deg/s, 8 sonars,
-    three 12 V 7.2 Ah batteries (:data:`simulator.energy.PIONEER_DX`)."""
+    three 12 V batteries (252 Wh) (:data:`simulator.energy.PIONEER_DX`)."""
     return ModelSpec(
         name=name,
         type_name="pioneer2dx",
@@ -236,7 +236,7 @@ def pioneer2dx(name: str, pose: Sequence[float] = (0.0, 0.0, 0.0), *, color: Col
 
 def pioneer3at(name: str, pose: Sequence[float] = (0.0, 0.0, 0.0), *, color: Color = "red") -> ModelSpec:
     """A Pioneer 3AT base (skid steer, simulated as a differential drive): 0.626 x 0.505 x 0.277 m,
-    30 kg, 0.7 m/s and 140 deg/s, 16 sonars, three 12 V 7.2 Ah batteries
+    30 kg, 0.7 m/s and 140 deg/s, 16 sonars, three 12 V batteries (252 Wh)
     (:data:`simulator.energy.PIONEER_AT`)."""
     return ModelSpec(
         name=name,

@@ -138,7 +138,7 @@ class BatterySpec:
     sensors, ``max_charge`` the most watts it takes from a charger (0: whatever the charger gives).
     The defaults are a Pioneer 2DX/3DX's (:data:`simulator.energy.PIONEER_DX`)."""
 
-    capacity: float = 3 * 12.0 * 7.2 * 3600.0  # J: three 12 V 7.2 Ah lead-acid batteries
+    capacity: float = 252.0 * 3600.0  # J: three 12 V lead-acid batteries, 252 Wh (a Pioneer)
     charge: float = 1.0  # fraction of capacity at start
     per_metre: float = 20.0  # J/m
     per_radian: float = 4.0  # J/rad

@@ -325,13 +325,13 @@ class Mapper(DeviceMapping):
                 stored = b.capacity = v * scale
                 b.charge = 1.0
         if (p := P.get("joules_capacity")) is not None:
-            v = num(p, "joules > 0", "joules_capacity 933120")
-            check(v > 0, p, "joules > 0", "joules_capacity 933120")
+            v = num(p, "joules > 0", "joules_capacity 907200")
+            check(v > 0, p, "joules > 0", "joules_capacity 907200")
             b.capacity = v
             b.charge = 1.0 if stored is None else min(1.0, stored / v)
         if (p := P.get("battery_capacity")) is not None:
-            v = num(p, "watt-hours >= 0 (0: no battery model)", "battery_capacity 259.2")
-            check(v >= 0, p, "watt-hours >= 0 (0: no battery model)", "battery_capacity 259.2")
+            v = num(p, "watt-hours >= 0 (0: no battery model)", "battery_capacity 252")
+            check(v >= 0, p, "watt-hours >= 0 (0: no battery model)", "battery_capacity 252")
             if v == 0:
                 m.battery = None
                 return

@@ -236,7 +236,7 @@ class Mapper(DeviceSections):
             spec.battery = None
             return
         where = f"{where}.battery"
-        b = self.mapping(v, m.line_of("battery"), where, "{capacity: 259.2, charge: 1.0, watts: 20}")
+        b = self.mapping(v, m.line_of("battery"), where, "{capacity: 252, charge: 1.0, watts: 20}")
         self.check_keys(b, BATTERY_KEYS, where)
         bat = spec.battery = spec.battery or BatterySpec()
         bat.capacity = self.num(b, "capacity", where, bat.capacity / 3600.0, positive=True, unit=" (Wh)") * 3600.0

@@ -156,7 +156,7 @@ def test_pioneer_presets_carry_the_datasheet_battery_and_last_hours():
     assert pioneer2dx("r").battery == PIONEER_DX
     assert pioneer3at("r").battery == PIONEER_AT
     wh = PIONEER_DX.capacity / 3600.0
-    assert wh == pytest.approx(259.2)  # three 12 V 7.2 Ah batteries
+    assert wh == pytest.approx(252.0)  # three 12 V batteries, 252 Wh
     dx_hours = PIONEER_DX.capacity / (PIONEER_DX.watts + 0.5 * PIONEER_DX.per_metre) / 3600.0
     at_hours = PIONEER_AT.capacity / (PIONEER_AT.watts + 0.5 * PIONEER_AT.per_metre) / 3600.0
     assert 8.0 <= dx_hours <= 10.0  # datasheet: 8-10 h
