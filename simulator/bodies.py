@@ -13,6 +13,9 @@ read for meaning); here the physics is pymunk's. :class:`Bodies` owns what the
   body): poses, the motor pass of :meth:`simulator.drive.Drives.motors`, the robots' poses for
   odometry, and the circles the ray caster of :mod:`simulator.raycast` sees, built once per step
   and flag.
+* the contact counter (:meth:`Bodies.contacts`): every time a robot starts touching a wall or
+  another robot, in any physics substep, pymunk's ``begin`` callback counts it (Python runs once per
+  new contact, not per step), so a verdict of "no contact" rests on every step, not on samples.
 """
 
 from __future__ import annotations
@@ -37,6 +40,8 @@ _F = pymunk.batch.BodyFields
 _MOTOR_GET = _F.BODY_ID | _F.ANGLE | _F.VELOCITY | _F.ANGULAR_VELOCITY | _F.FORCE | _F.TORQUE
 _MOTOR_SET = _F.VELOCITY | _F.ANGULAR_VELOCITY | _F.FORCE | _F.TORQUE
 _POSE_GET = _F.BODY_ID | _F.POSITION | _F.ANGLE  # per body [x, y, angle]
+# pymunk collision types: what a contact is between (Bodies.contacts)
+_WALL, _ROBOT = 1, 2
 
 
 class Bodies:
@@ -52,6 +57,12 @@ class Bodies:
         self._next_uid = 0
         self._circles: dict[str, CircleIndex] = {}  # per step: the bodies rays see, by flag
         self.wall_count = self._add_walls(grid)
+        self._owner: dict[pymunk.Body, str] = {}  # robot bodies -> robot name (contact counting)
+        self.robot_contacts = 0  # a robot began touching another robot (each pair once per contact)
+        self.wall_contacts = 0  # a robot began touching a wall
+        self.touched: dict[str, list[int]] = {}  # robot -> [robot contacts, wall contacts]
+        self.space.on_collision(_ROBOT, _ROBOT, begin=self._robot_robot)
+        self.space.on_collision(_ROBOT, _WALL, begin=self._robot_wall)
         # Batch buffers, reused: pymunk allocates one per Buffer and never frees it.
         self._get_buf = pymunk.batch.Buffer()  # reads fill its own arrays
         self._set_buf = pymunk.batch.Buffer()  # writes are handed a numpy array each time
@@ -81,6 +92,7 @@ class Bodies:
                 ],
             )
             box.friction = 0.6
+            box.collision_type = _WALL
             shapes.append(box)
         self.space.add(*shapes)
         return len(shapes)
@@ -101,7 +113,11 @@ class Bodies:
         for shape in shapes:
             shape.friction = 0.6
             shape.sensor = not spec.obstacle_return
+            if spec.position:
+                shape.collision_type = _ROBOT
         self.space.add(body, *shapes)
+        if spec.position:
+            self._owner[body] = spec.name
         model = Model(spec=spec, uid=self._next_uid, body=body, shapes=shapes, radius=radius)
         self._next_uid += 1
         self.models[spec.name] = model
@@ -115,12 +131,41 @@ class Bodies:
         """Take ``m`` out of the space and the table; the robots after it move up a row."""
         if m.in_space:
             self.space.remove(*m.shapes, m.body)
+        self._owner.pop(m.body, None)
         del self.models[m.spec.name]
         if m.row >= 0:
             self.robots.pop(m.row)
             for i, rm in enumerate(self.robots):
                 rm.row = i
         self.changed()
+
+    # ------------------------------------------------------------------ contacts
+    def _touch(self, arbiter: pymunk.Arbiter, kind: int) -> list[str]:
+        a, b = arbiter.shapes
+        if a.sensor or b.sensor:  # a model without obstacle_return touches nothing
+            return []
+        names = [n for n in (self._owner.get(a.body), self._owner.get(b.body)) if n is not None]
+        for n in names:
+            self.touched.setdefault(n, [0, 0])[kind] += 1
+        return names
+
+    def _robot_robot(self, arbiter: pymunk.Arbiter, space, data) -> None:
+        if self._touch(arbiter, 0):
+            self.robot_contacts += 1
+
+    def _robot_wall(self, arbiter: pymunk.Arbiter, space, data) -> None:
+        if self._touch(arbiter, 1):
+            self.wall_contacts += 1
+
+    def contacts(self) -> dict:
+        """The contacts since the world was built: ``robot_robot`` (pairs of robots that began
+        touching), ``robot_wall`` (a robot began touching a wall) and ``robots``: for each robot that
+        touched anything, ``[robot contacts, wall contacts]``. A contact that lasts counts once."""
+        return {
+            "robot_robot": self.robot_contacts,
+            "robot_wall": self.wall_contacts,
+            "robots": {k: list(v) for k, v in sorted(self.touched.items())},
+        }
 
     def take_out(self, m: Model) -> bool:
         """Take ``m`` out of the physics (carried by a gripper); whether it was in."""

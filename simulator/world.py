@@ -256,6 +256,11 @@ class World:
         if self.bodies.put_back(o):
             self._models_changed()
 
+    def contacts(self) -> dict:
+        """Every contact of a robot with a wall or another robot since the world was built or reset,
+        counted in every physics substep (:meth:`simulator.bodies.Bodies.contacts`)."""
+        return self.bodies.contacts()
+
     def pause(self, paused: bool = True) -> None:
         """While paused, :meth:`advance` does nothing; :meth:`step` still steps (Stage's step button)."""
         self.paused = bool(paused)

@@ -153,7 +153,7 @@ class SimulationDriver(Driver):
             d.check_timeout()
 
     def ops(self, addr):
-        return ["get_pose", "set_pose", "models", "pause", "step", "reset", "remove_model"]
+        return ["get_pose", "set_pose", "models", "contacts", "pause", "step", "reset", "remove_model"]
 
     def geometry(self, addr):
         return {
@@ -176,6 +176,8 @@ class SimulationDriver(Driver):
                 return {"name": name, "pose": [x, y, a]}
             if op == "models":
                 return {"robots": w.robot_names, "objects": [n for n in w.model_names if n not in w.robot_names]}
+            if op == "contacts":
+                return w.contacts()
             if op == "pause":
                 w.pause(get_bool(args, "paused", True))
                 return {"paused": w.paused}

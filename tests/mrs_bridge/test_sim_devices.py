@@ -128,3 +128,17 @@ def test_bumper_and_fiducial_publish_at_the_sensors_rate(live, port, fabric_fact
     per_s = (bumper.count - n0) / span
     interval = w.model_spec("r0").bumpers[0].interval
     assert per_s == pytest.approx(1.0 / interval, rel=0.25)  # one message per bumper update, not one per step
+
+
+def test_simulation_contacts_rpc_reports_a_robot_moved_onto_another(live, port, fabric_factory):
+    w, _ = live
+    fab = fabric_factory(port)
+    fab.node("**").wait_for("sim:simulation:0", timeout=20)
+    sim = fab.device("sim:simulation:0")
+    c = sim.rpc("contacts")
+    assert (c["robot_robot"], c["robot_wall"], c["robots"]) == (0, 0, {})  # the box is no robot
+    sim.rpc("set_pose", name="r1", pose=[0.0, -0.37, 0.0])  # 1 cm into r0's side
+    wait_until(lambda: sim.rpc("contacts")["robot_robot"] >= 1, 20, "the contact counted after the next step")
+    c = sim.rpc("contacts")
+    assert set(c["robots"]) == {"r0", "r1"} and c["robot_wall"] == 0
+    assert c["robots"]["r1"][0] >= 1 and c["robots"]["r0"][0] >= 1

@@ -150,6 +150,37 @@ def test_robots_collide_with_each_other(tmp_path):
     assert bx - ax > 0.44 - 0.03  # never overlap by more than the contact slop
 
 
+def test_contacts_count_every_robot_robot_and_robot_wall_contact_but_not_objects(tmp_path):
+    box = ModelSpec(name="box", pose=(-2.0, 2.0, 0.0), size=(0.4, 0.4, 0.4), mass=2.0, obstacle_return=True)
+    w = world(
+        tmp_path,
+        [
+            robot("a", (0.0, 0.0, 0.0)),
+            robot("b", (1.0, 0.0, math.pi)),
+            robot("c", (4.0, -2.0, 0.0)),
+            robot("dd", (-3.0, 2.0, 0.0)),
+            box,
+        ],
+    )
+    w.step(5)
+    assert w.contacts() == {"robot_robot": 0, "robot_wall": 0, "robots": {}}  # standing apart
+    w.set_velocity("dd", 0.5, 0.0)  # pushes the box: not a contact of robots or walls
+    w.step(40)
+    assert w.contacts()["robots"] == {}
+    w.set_velocity("a", 0.5, 0.0)
+    w.set_velocity("b", 0.5, 0.0)
+    w.step(30)
+    c = w.contacts()
+    assert c["robot_robot"] >= 1 and c["robot_wall"] == 0
+    assert c["robots"]["a"][0] >= 1 and c["robots"]["b"][0] >= 1 and "c" not in c["robots"]
+    w.set_velocity("c", 0.5, 0.0)  # into the wall at x = 4.85
+    w.step(40)
+    c = w.contacts()
+    assert c["robot_wall"] >= 1 and c["robots"]["c"][1] >= 1 and c["robots"]["c"][0] == 0
+    w.reset()
+    assert w.contacts()["robot_robot"] == 0
+
+
 def test_robot_pushes_an_obstacle_object(tmp_path):
     box = ModelSpec(name="box", pose=(1.0, 0.0, 0.0), size=(0.4, 0.4, 0.4), mass=2.0, obstacle_return=True)
     w = world(tmp_path, [robot(), box])
