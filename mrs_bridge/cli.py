@@ -105,10 +105,11 @@ def sim_config(
     """The server configuration of ``rsal sim`` for a loaded :class:`simulator.world.World`.
 
     With ``nav`` (``"vfh"``, ``"nd"`` or ``"snd"``) every robot with a laser (or those named in
-    ``nav_robots``) also gets the navigation stack of thesis appendix A.3: ``amcl`` (localize:0,
-    position2d:2, started at the robot's true pose), the local planner (position2d:1) and
-    ``wavefront`` (planner:0), all on the simulated floorplan ``sim:map:0``. ``node`` names the node
-    of the simulation and map devices (default ``sim``). With ``truth`` every robot also gets
+    ``nav_robots``; ``["*"]``: every robot with a laser or a sonar ring) also gets the navigation
+    stack of thesis appendix A.3: ``amcl`` (localize:0, position2d:2, started at the robot's true
+    pose), the local planner (position2d:1) and ``wavefront`` (planner:0), all on the simulated
+    floorplan ``sim:map:0``. ``node`` names the node of the simulation and map devices (default
+    ``sim``). With ``truth`` every robot also gets
     ``position2d:3``, its ground-truth pose in the world frame (a ``sim`` driver with ``localization =
     "gps"``, describe frame ``gps``): what ``rsal record`` records as the reference of a run.
     """
@@ -139,7 +140,9 @@ def sim_config(
         if world.grid is None or not map_device:
             raise ConfigError(f"{source}: --nav needs the world's floorplan served as {map_addr}")
         wanted = set(nav_robots) if nav_robots else None
-        if wanted:
+        if wanted and "*" in wanted:  # every robot with a ranger, sonar-only ones too
+            wanted = {n for n in world.robot_names if world.model_spec(n).rangers}
+        elif wanted:
             unknown = sorted(wanted - set(world.robot_names))
             if unknown:
                 raise ConfigError(f"{source}: --nav-robots names unknown robot(s) {', '.join(unknown)}")
@@ -272,7 +275,8 @@ def register_sim(sub) -> None:
         "--nav-robots",
         type=lambda t: [x for x in t.split(",") if x],
         metavar="R0,R1",
-        help="robots that get the navigation stack (default: every robot with a laser)",
+        help="robots that get the navigation stack (default: every robot with a laser; '*': every robot "
+        "with a laser or sonar)",
     )
     p.add_argument(
         "--truth",

@@ -55,6 +55,34 @@ def test_a_robots_devices_come_from_its_world_model():
     assert not {"r1:bumper:0", "r1:fiducial:0", "r0:laser:0"} & provided
 
 
+def test_nav_robots_star_gives_every_robot_with_a_laser_or_sonar_the_navigation_stack(tmp_path):
+    from PIL import Image
+
+    from simulator.presets import pioneer2dx_sonar
+    from simulator.spec import FloorplanSpec
+
+    img = np.full((80, 80), 255, dtype=np.uint8)
+    img[:2, :] = img[-2:, :] = img[:, :2] = img[:, -2:] = 0
+    Image.fromarray(img).save(tmp_path / "room.png")
+    laser = RangerSpec(name="laser", kind="laser", sensors=[RangerSensorSpec(samples=9)])
+    models = [
+        robot("a", rangers=[laser]),
+        robot("b", pose=(1.0, 1.0, 0.0), rangers=[pioneer2dx_sonar()]),
+        robot("c", pose=(-1.0, -1.0, 0.0)),
+    ]
+    fp = FloorplanSpec(bitmap=tmp_path / "room.png", resolution=0.05, origin=(-2.0, -2.0))
+    w = World(WorldSpec(floorplan=fp, models=models), seed=0)
+
+    def amcl(nav_robots):
+        cfg = sim_config(w, nav="vfh", nav_robots=nav_robots)
+        return {d.provides[0].node: [str(r) for r in d.requires] for d in cfg.drivers if d.name == "amcl"}
+
+    assert set(amcl(None)) == {"a"}  # default: the robots with a laser
+    star = amcl(["*"])
+    assert set(star) == {"a", "b"}  # c has no ranger
+    assert "b:sonar:0" in star["b"] and "a:laser:0" in star["a"]
+
+
 def test_a_device_the_model_lacks_is_refused_with_the_fix():
     w = contact_world()
     cfg = ServerConfig(
