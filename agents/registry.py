@@ -41,6 +41,8 @@ CLASS_MODULES: dict[str, str] = {
     "MasterAgent": "agents.scenarios.collect.master",
     "SwarmAgent": "agents.scenarios.swarm.agents",
     "SwarmMonitor": "agents.scenarios.swarm.monitor",
+    "ThesisSwarmAgent": "agents.scenarios.swarm.thesis",
+    "ThesisSwarmMonitor": "agents.scenarios.swarm.thesis",
     "DispersionAgent": "agents.scenarios.distribution.agents",
     "ViewAgent": "agents.scenarios.mixed.agents",
 }

@@ -136,6 +136,7 @@ class SwarmAgent(RobotAgent):
     """
 
     capabilities = ("send_position", STATS_SERVICE)
+    pioneer_class: type[SwarmPioneer] = SwarmPioneer  # the robot it builds (a subclass may use its own)
 
     def __init__(
         self,
@@ -296,7 +297,7 @@ class SwarmAgent(RobotAgent):
         wait(f"{name}:position2d:0", "position2d:0 device")
         wait(f"{name}:{ranger}:0", f"{ranger}:0 device (laser={self.laser}; does the robot have one?)")
         devs = [hub.node.device(f"{name}:position2d:0"), hub.node.device(f"{name}:{ranger}:0")]
-        robot = SwarmPioneer(devs, name=name, period=self.period, laser=self.laser)
+        robot = self.pioneer_class(devs, name=name, period=self.period, laser=self.laser)
         left = max(0.5, deadline - time.monotonic())
         try:
             devs[1].describe(timeout=min(5.0, left))  # the beam geometry, before the first cycle

@@ -13,6 +13,8 @@ from pathlib import Path
 
 __all__ = ["crowd_world", "write_crowd_world"]
 
+_MODELS = {"pioneer2dx": "Pioneer 2DX with its 8-sonar ring", "pioneer3at": "Pioneer 3-AT with its 16-sonar ring"}
+
 
 def crowd_world(
     n: int,
@@ -37,7 +39,7 @@ def crowd_world(
     lines = [
         f"# RSAL fabric -- a crowd of {n} Pioneers for the Swarm scenario (thesis 4.2.3), written by",
         "# agents.scenarios.swarm.crowd_world: the 128 m arena, robots on a square grid around its centre,",
-        f"# {spacing:g} m apart, random headings (seed {seed}). Each is a Pioneer 2DX with its 8-sonar ring",
+        f"# {spacing:g} m apart, random headings (seed {seed}). Each is a {_MODELS.get(model, model)}",
         "# (the light sensor model: no laser). Stage 4 syntax; original to this project.",
         "",
         'include "pioneer.inc"',

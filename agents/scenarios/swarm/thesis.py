@@ -1,0 +1,229 @@
+"""The thesis's Swarm in full (4.2.3, fig. 4.7): every robot localizes on its sonar ring with AMCL
+and carries a planner, as Player ran them in each robot's context.
+
+"In the Swarm scenario each robot has a planner and a localize device running the AMCL, Wavefront and
+VFH drivers in the robot's context" -- here ``rsal sim --nav vfh --nav-robots '*'`` (scenario
+``simulator: {nav: vfh, nav_robots: ["*"]}``) gives each Pioneer 3-AT its ``amcl`` on ``sonar:0``
+(``localize:0`` and the map-frame pose ``position2d:2``, started at the pose its world file gives),
+``vfh`` (``position2d:1``) and ``wavefront`` (``planner:0``).
+
+:class:`ThesisSwarmAgent` is a :class:`~agents.scenarios.swarm.agents.SwarmAgent` (wall-following
+with the crowd's dispersal layer, broadcasting at 2 Hz, accounting every message it receives) whose
+robot context also holds its localize and planner devices: it broadcasts the AMCL pose, not its
+odometry, and steers its dispersal by it (:class:`ThesisPioneer`). Its odometry is left as it is:
+setting it would look to AMCL like a jump of the robot.
+
+:class:`ThesisSwarmMonitor` is the :class:`~agents.scenarios.swarm.monitor.SwarmMonitor` with the
+two ground-truth checks the full stack needs: every contact of a robot with a wall or another robot,
+counted by the simulator in every physics step (``sim:simulation:0`` ``rpc/contacts``), and each
+robot's localization error (its AMCL pose on ``position2d:2`` against its true pose) at every sample;
+the verdict needs no contact and an error under ``max_loc_error`` for ``loc_share`` of robot-time.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import logging
+import math
+import threading
+import time
+import weakref
+
+import numpy as np
+
+from agents.registry import agent_class
+from agents.services import Outcome, SendPosition
+from rsal.behaviours import BehaviourParams
+from rsal.robot import Pioneer
+
+from .agents import SwarmAgent, SwarmPioneer
+from .monitor import SwarmMonitor
+
+__all__ = ["ThesisPioneer", "ThesisSwarmAgent", "ThesisSwarmMonitor", "params_for_size"]
+
+log = logging.getLogger(__name__)
+
+LOCALIZE = "position2d:2"  # the amcl driver's pose in the map frame (mrs_bridge.drivers.amcl)
+
+_nav_nodes: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # RobotHub -> its DeviceNode of nav devices
+_nav_lock = threading.Lock()
+
+
+def _nav_node(hub):
+    """One DeviceNode per host's hub following every robot's localize pose and planner."""
+    with _nav_lock:
+        node = _nav_nodes.get(hub)
+        if node is None:
+            node = _nav_nodes[hub] = hub.fabric.node(f"*:{LOCALIZE}", "*:planner:0")
+        return node
+
+
+class ThesisPioneer(SwarmPioneer):
+    """A :class:`SwarmPioneer` whose dispersal layer reads the robot's heading from its localize
+    device (the map frame its neighbours' broadcasts are in), not from its odometry."""
+
+    localize = None  # the Position2d proxy of <robot>:position2d:2, set by the agent
+
+    def update(self) -> None:
+        m = self.localize.latest if self.localize is not None else None
+        if m is None:
+            super().update()
+            return
+        self.behaviour.yaw = m.pose[2]
+        Pioneer.update(self)
+
+
+def params_for_size(length: float, width: float, base: BehaviourParams | None = None) -> BehaviourParams:
+    """The behaviour's distances (``radius``, ``stop_dist``, ``avoid_dist``, ``wall_dist``) scaled
+    from the Pioneer 2DX's (44 x 38 cm, the defaults of :class:`rsal.behaviours.BehaviourParams`) to
+    a base of ``length`` x ``width`` m: a Pioneer 3-AT (62.6 x 50.5 cm) keeps 1.4 times the
+    distance, so its longer body stops before it touches what the 2DX's distances let it reach."""
+    base = base or BehaviourParams()
+    k = max(1.0, max(length, width) / 2.0 / 0.22)
+    return dataclasses.replace(
+        base,
+        radius=base.radius * k,
+        stop_dist=base.stop_dist * k,
+        avoid_dist=base.avoid_dist * k,
+        wall_dist=base.wall_dist * k,
+    )
+
+
+@agent_class("ThesisSwarmAgent")
+class ThesisSwarmAgent(SwarmAgent):
+    """One robot of the thesis's swarm: a :class:`SwarmAgent` whose robot also has a localize device
+    (AMCL on its sonar ring, pose on ``<robot>:position2d:2``) and a planner (``<robot>:planner:0``).
+    Its broadcasts carry the AMCL pose (``map`` frame); its behaviour's distances fit its base's
+    size (:func:`params_for_size`). Takes every :class:`SwarmAgent` argument; ``simulation`` is
+    false by default (no true pose is read: the AMCL estimate is the only pose the robot has)."""
+
+    pioneer_class = ThesisPioneer
+
+    def __init__(self, agent_id: str, *, simulation: bool = False, **kw):
+        super().__init__(agent_id, simulation=simulation, **kw)
+        self.localize = None  # the Position2d proxy of <robot>:position2d:2
+
+    def _build_shared(self, hub) -> Pioneer:  # a worker thread
+        name = self.robot
+        deadline = time.monotonic() + self.startup_timeout
+        node = _nav_node(hub)
+        for what in (LOCALIZE, "planner:0"):
+            addr = f"{name}:{what}"
+            try:
+                node.wait_for(addr, 1, max(0.5, deadline - time.monotonic()))
+            except TimeoutError:
+                raise TimeoutError(
+                    f"robot {name!r}: no {addr} within {self.startup_timeout:g} s (the thesis swarm needs the "
+                    "navigation stack per robot: rsal sim --nav vfh --nav-robots '*')"
+                ) from None
+        self.localize = node.device(f"{name}:{LOCALIZE}")
+        try:
+            self.localize.wait_for_data(max(0.5, deadline - time.monotonic()))
+        except TimeoutError:
+            raise TimeoutError(f"robot {name!r}: its localize device published no pose in time") from None
+        robot = super()._build_shared(hub)
+        robot.localize = self.localize
+        size = robot.position2d.describe(timeout=5.0).geometry.get("size") or [0.44, 0.38]
+        robot.behaviour.p = params_for_size(float(size[0]), float(size[1]), robot.behaviour.p)
+        self.frame = "map"  # what it broadcasts and steers by
+        return robot
+
+    def pose_message(self) -> SendPosition | None:
+        m = self.localize.latest if self.localize is not None else None
+        if m is None:
+            return super().pose_message()
+        x, y, yaw = m.pose
+        return SendPosition(self.robot, x, y, yaw, "map")
+
+
+@agent_class("ThesisSwarmMonitor")
+class ThesisSwarmMonitor(SwarmMonitor):
+    """The swarm's judge with the full stack's checks (module docstring): ``max_loc_error`` (m) and
+    ``loc_share`` (the share of robot-samples that must be within it, 0.95) on top of every
+    :class:`SwarmMonitor` argument; contacts (robot-robot, robot-wall) of the watched robots must be
+    none."""
+
+    def __init__(self, agent_id: str, *, max_loc_error: float = 0.5, loc_share: float = 0.95, **kw):
+        super().__init__(agent_id, **kw)
+        if not max_loc_error > 0:
+            raise ValueError(f"agent {agent_id}: max_loc_error {max_loc_error!r} must be a positive distance in m")
+        if not 0 < loc_share <= 1:
+            raise ValueError(f"agent {agent_id}: loc_share {loc_share!r} must be in (0, 1]")
+        self.max_loc_error = float(max_loc_error)
+        self.loc_share = float(loc_share)
+        self.estimates: list = []  # Position2d proxies of each watched robot's position2d:2
+        self.loc_errors: list[np.ndarray] = []  # per sample: each robot's error (nan: no estimate yet)
+        self.contacts: dict = {"robot_robot": 0, "robot_wall": 0, "robots": {}}
+        self._est_node = None
+
+    def _simulation(self):  # a worker thread
+        sim = super()._simulation()
+        self._est_node = self.fabric.node(f"*:{LOCALIZE}")
+        deadline = time.monotonic() + self.startup_timeout
+        for r in self.robots:
+            try:
+                self._est_node.wait_for(f"{r}:{LOCALIZE}", 1, max(0.5, deadline - time.monotonic()))
+            except TimeoutError:
+                raise TimeoutError(
+                    f"{self.id}: robot {r} has no localize pose {r}:{LOCALIZE} within {self.startup_timeout:g} s"
+                ) from None
+            self.estimates.append(self._est_node.device(f"{r}:{LOCALIZE}"))
+        return sim
+
+    async def poses(self, sim) -> np.ndarray:
+        xy = await super().poses(sim)
+        self.contacts = await asyncio.wrap_future(sim.rpc_async("contacts"))
+        return xy
+
+    def check(self, xy: np.ndarray, t: float) -> None:
+        super().check(xy, t)
+        est = np.full((len(self.robots), 2), np.nan)
+        for i, dev in enumerate(self.estimates):
+            m = dev.latest
+            if m is not None:
+                est[i] = m.pose[:2]
+        if len(est) == len(xy):
+            self.loc_errors.append(np.hypot(*(est - xy).T))
+
+    def localization(self) -> tuple[float, float, float]:
+        """(share of robot-samples within ``max_loc_error``, its 95th percentile, the worst) in m."""
+        if not self.loc_errors:
+            return 0.0, math.nan, math.nan
+        e = np.concatenate(self.loc_errors)
+        e = np.where(np.isnan(e), np.inf, e)  # a robot without an estimate counts as lost
+        return float(np.mean(e <= self.max_loc_error)), float(np.percentile(e, 95)), float(e.max())
+
+    def contact_counts(self) -> tuple[int, int]:
+        """(robot-robot, robot-wall) contacts of the watched robots (a pair of watched robots counts
+        once for each of them)."""
+        per = self.contacts.get("robots", {}) if isinstance(self.contacts, dict) else {}
+        watched = set(self.robots)
+        rr = sum(int(v[0]) for k, v in per.items() if k in watched)
+        rw = sum(int(v[1]) for k, v in per.items() if k in watched)
+        return rr, rw
+
+    def judge(self, elapsed: float) -> Outcome:
+        base = super().judge(elapsed)
+        share, p95, worst = self.localization()
+        rr, rw = self.contact_counts()
+        problems = []
+        if rr or rw:
+            problems.append(f"{rr} robot-robot and {rw} robot-wall contact(s)")
+        if share < self.loc_share:
+            problems.append(
+                f"localization within {self.max_loc_error:g} m for {100 * share:.1f} % of robot-time "
+                f"< {100 * self.loc_share:g} %"
+            )
+        text = (
+            f"{base.text}; contacts {rr} robot-robot, {rw} robot-wall; localization error p95 {p95:.2f} m, "
+            f"worst {worst:.2f} m, within {self.max_loc_error:g} m {100 * share:.1f} %"
+        )
+        if problems:
+            text += " -- " + "; ".join(problems)
+        return Outcome("verdict", "swarm", text, ok=base.ok and not problems, final=True)
+
+    async def killed(self) -> None:
+        if self._est_node is not None:
+            self._est_node.close()
+        await super().killed()
