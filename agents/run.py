@@ -23,16 +23,17 @@ sender is reported once (``docs/security.md``, "Open fabric"). It prints every o
 a progress line every few seconds, and relays
 its children's output with their name in front. The run ends with success (exit 0) when the end
 condition holds — ``count`` distinct subjects of ok ``event`` outcomes, or ``duration`` seconds
-(counted from the moment every agent is alive) without a failed outcome — or at once with the
-``ok`` of an outcome marked ``final``. With a simulator every claim is checked against its ground
-truth first (a rehearsed robot's against the rehearsal's world, "the real world") (:mod:`agents.verdict`; also with ``--connect`` to a fabric whose simulation device is
-alive): a catch, an arrival or a final verdict the true poses
-contradict counts as failed, and a duration run's ``travel``/``clearance`` come from sampled true
-poses. It fails (exit 1) on its timeout, a failed final outcome or a
-child that exits unexpectedly (one line naming it and its last stderr line). A bad scenario file or
-argument exits 2 with one line; SIGINT/SIGTERM stop everything and exit 130. Stopping sends SIGTERM
-to the agent hosts, then the servers, then the simulator, each with a deadline, and SIGKILL by PID
-to whatever is left. The format and the lines printed are described in ``docs/scenarios.md``.
+(counted from the moment every agent is alive) without a failed outcome — or at once with the ``ok``
+of an outcome marked ``final``. With a simulator every claim is checked against its ground truth
+first (:mod:`agents.verdict`; a rehearsed robot's against the rehearsal's world, "the real world";
+also with ``--connect`` to a fabric whose simulation device is alive): a catch, an arrival, a
+delivery or a final verdict the true poses contradict counts as failed, and a duration run's
+``travel``/``clearance`` come from sampled true poses. It fails (exit 1) on its timeout, a failed
+final outcome or a child that exits unexpectedly (one line naming it and its last stderr line). A
+bad scenario file or argument exits 2 with one line; SIGINT/SIGTERM stop everything and exit 130.
+Stopping sends SIGTERM to the agent hosts, then the servers, then the rehearsal, then the simulator,
+each with a deadline, and SIGKILL by PID to whatever is left. The format and the lines printed are
+described in ``docs/scenarios.md``.
 
 (Somewhat over 500 lines: the runner's phases, end conditions and summary are one state machine
 over one event queue; the processes themselves are :mod:`rsal.procs`'s.)
@@ -68,6 +69,8 @@ SIM_NODE = "sim"  # the node of the simulator that rsal sim serves
 SIM_DEVICE = f"rsal/{SIM_NODE}/simulation/0"
 #: seconds each kind of child gets to exit after SIGTERM before SIGKILL
 STOP_DEADLINES = {"host": 15.0, "server": 10.0, "rehearse": 15.0, "sim": 10.0}
+#: what each kind of child is called in a failure line
+CHILD_KINDS = {"sim": "the simulator", "rehearse": "the rehearsal", "server": "device server", "host": "agent host"}
 
 
 def _err(text: str) -> None:
@@ -373,9 +376,7 @@ class Runner:
             if c.kind == "host" and rc == 0:
                 self.out.say(f"agent host {c.name} exited: its agents ended")
                 continue
-            what = {"sim": "the simulator", "rehearse": "the rehearsal", "server": "device server", "host": "agent host"}[
-                c.kind
-            ]
+            what = CHILD_KINDS[c.kind]
             name = "" if c.kind in ("sim", "rehearse") else f" {c.name!r}"
             self.result = (False, f"{what}{name} (pid {c.pid}) {c.exit_reason()}")
             return
