@@ -17,7 +17,9 @@ agrees:
 - ``delivered`` (Find and Collect, thesis 4.2.2; subject: the master's blob id): one more object
   of a collector's world (not a robot, not a proxy) than there were deliveries before truly lies
   within :data:`DELIVER_TOLERANCE` of a collector's home -- its ``home`` argument, else where its
-  robot truly stood when the agents were started (:meth:`GroundTruth.record_homes`);
+  robot truly stood when the agents were started (:meth:`GroundTruth.record_homes`); collectors
+  that are no robot of any simulated world (real robots, of which the virtual world has a proxy at
+  most) are not judged, and a delivery no collector can be judged for is let stand, with a note;
 - a ``duration`` run with ``end.travel`` / ``end.clearance``: the true poses of every agent's robot,
   sampled every :data:`SAMPLE_PERIOD` seconds, must add up to at least ``travel`` metres each and
   keep the robot's centre at least ``clearance`` metres from every occupied cell of the map
@@ -185,13 +187,17 @@ class GroundTruth:
     def _delivered(self, o) -> str | None:
         """One more bin than confirmed before must truly lie within DELIVER_TOLERANCE of a home."""
         robots = {a.robot for a in self.app.agents if a.robot}
-        near, nearest = set(), (math.inf, "", "")
+        near, nearest, judged = set(), (math.inf, "", ""), 0
         for a in self.collectors():
+            world = self._world(a.robot)
+            models = world.models()
+            if a.robot not in models.get("robots", []):  # a real robot (its proxy at most): no truth here
+                continue
             if a.robot not in self.homes:
                 return f"ground truth: {a.robot}'s home is unknown (its world did not answer at the start)"
-            world = self._world(a.robot)
+            judged += 1
             home = self.homes[a.robot]
-            for name in world.models().get("objects", []):
+            for name in models.get("objects", []):
                 if name in robots:  # a proxy of a real robot, not a bin
                     continue
                 d = math.dist(self._where_in(world, name), home)
@@ -199,6 +205,9 @@ class GroundTruth:
                     near.add((id(world), name))
                 if d < nearest[0]:
                     nearest = (d, name, a.robot)
+        if not judged:
+            self.note = "ground truth: no collector lives in a simulated world; the delivery is not judged"
+            return None
         if len(near) <= self.delivered:
             d, name, robot = nearest
             closest = f"; nearest: {name} {d:.2f} m from {robot}'s home {_xy(self.homes[robot])}" if name else ""

@@ -104,6 +104,11 @@ def test_the_real_collector_fetches_the_bin_the_virtual_explorer_found(procs):
     moving = [math.dist(c1[:2], px[:2]) for _, c1, _, px in s if px is not None and math.dist(c1[:2], HOME) > 0.5]
     assert len(moving) > 20
     assert statistics.median(moving) < 0.3, f"proxy off c1's true pose by {statistics.median(moving):.2f} m (median)"
+    took = re.search(r"\[run\] elapsed ([\d.]+) s", out).group(1)
+    print(
+        f"mixed Find and Collect: {took} s; c1 up to {farthest:.2f} m from home; bin {math.dist(end, HOME):.2f} m "
+        f"from home; proxy off c1 by {statistics.median(moving):.3f} m median, {max(moving):.3f} m worst"
+    )
 
     # every process the run started, and the rehearsal's drivers' server, is gone
     pids = [int(x) for x in re.findall(r"\[run\] started \S+ \(pid (\d+)\)", out)]

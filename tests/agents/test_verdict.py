@@ -179,6 +179,20 @@ def test_a_delivery_counts_only_with_a_bin_truly_home_in_the_collectors_world(tm
     assert g.check("master", Outcome("delivered", "blob1", "failed", ok=False)) is None  # no claim
 
 
+def test_a_real_collector_without_a_rehearsal_is_not_judged_in_the_virtual_world(tmp_path):
+    """On real hardware c1 is only a proxy of the virtual world, where the blob it fetched stays:
+    that world cannot judge the delivery, and must not refuse it."""
+    (tmp_path / "w.world").write_text("")
+    (tmp_path / "s.yaml").write_text(COLLECT.replace("    rehearse: {world: w.world, robot: c1}\n", ""))
+    sc = load_scenario(tmp_path / "s.yaml")
+    assert sc.applications["mixed"].rehearse is None
+    virtual = FakeWorld({"e1": (-19.0, 1.75), "c1": (-22.0, 1.75), "blob0": (-16.0, 1.9)}, ["c1", "blob0"])
+    g = GroundTruth(None, sc, sc.applications["mixed"], sim=virtual, get_map=room)
+    g.record_homes()
+    assert g.check("master", Outcome("delivered", "blob0", "blob0 delivered home by col1")) is None
+    assert g.note == "ground truth: no collector lives in a simulated world; the delivery is not judged"
+
+
 def test_a_collectors_home_argument_is_its_home(tmp_path):
     (tmp_path / "w.world").write_text("")
     (tmp_path / "s.yaml").write_text(COLLECT)
