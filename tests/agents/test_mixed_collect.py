@@ -23,7 +23,7 @@ import pytest
 
 from rsal.client import Fabric
 from rsal.transport import TransportArgs
-from tests.conftest import free_port, rsal_cmd, wait_until
+from tests.conftest import MAPS, free_port, rsal_cmd, wait_until
 
 HOME = (-22.0, 1.75)  # c1's start in maps/mixed_real_collect.world
 BIN = (-16.0, 1.9)  # bin0 there, blob0 in maps/mixed_virtual_collect.world
@@ -123,3 +123,32 @@ def test_a_speedup_is_refused_for_a_rehearsed_robot(procs):
     out = p.output().strip()
     assert p.p.returncode == 2
     assert out == "rsal run: --speedup 3: application 'mixed' rehearses a real robot, which runs in real time"
+
+
+def test_a_rehearsal_that_cannot_start_fails_the_run_in_one_line(procs, tmp_path):
+    """A robot the real world does not have: rsal rehearse exits 1 with its one line, and the run
+    fails naming the rehearsal and quoting it, before any agent starts."""
+    f = tmp_path / "s.yaml"
+    f.write_text(
+        f"""
+scenario: wrong
+agent_types: {{collector: CollectAgent}}
+applications:
+  mixed:
+    simulator: {{world: {MAPS / "mixed_virtual_collect.world"}}}
+    rehearse: {{world: {MAPS / "mixed_real_collect.world"}, robot: c9}}
+    agents:
+      - {{type: collector, robot: c9}}
+    end: {{event: delivered, timeout: 60}}
+"""
+    )
+    p = procs(rsal_cmd("run", str(f)))
+    wait_until(lambda: not p.alive(), 90, "rsal run to fail", interval=0.1)
+    out = p.output()
+    assert p.p.returncode == 1, out
+    assert re.search(
+        r"(?m)^rsal run: the rehearsal \(pid \d+\) exited with code 1: rsal rehearse: .*mixed_real_collect.world: "
+        r"no robot named 'c9'; robots: c1$",
+        out,
+    ), out
+    assert "[run] started collector-c9" not in out and "Traceback" not in out
