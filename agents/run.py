@@ -165,7 +165,7 @@ class Runner:
         targs.config = getattr(self.args, "config", None)
         targs.cfg = list(getattr(self.args, "cfg", None) or [])
         self.session = open_session(targs)
-        if self.app.simulator is not None:
+        if self.app.simulator is not None and self.app.rehearse is None:  # a rehearsal: the wall clock
             self.sim_clock = SimClock().follow(self.session, SIM_NODE)
         if self.app.simulator is not None or self.app.rehearse is not None:
             self.truth = GroundTruth(self.session, self.sc, self.app)
@@ -210,8 +210,11 @@ class Runner:
     # ------------------------------------------------------------------ children
     def _start(self, name: str, kind: str, argv: list[str], shown: str) -> Child:
         env = python_env(self.sc.source.parent.resolve())
-        if kind == "host" and self.app.simulator is not None:
+        if kind == "host" and self.app.simulator is not None and self.app.rehearse is None:
             env[clock_env] = SIM_NODE  # the agents follow the simulation's clock (rsal.clock)
+        # With a rehearsal they keep the wall clock, as agents of real robots do: the real world runs
+        # in real time, whatever pace a loaded virtual simulator manages (a real robot's broadcasts
+        # on the virtual clock fall behind the robot, and so does its proxy).
         c = Child(name, argv, kind=kind, shown=shown, env=env, forward=self.out.line, stderr_apart=True)
         self.children.append(c)
         self.out.say(f"started {name} (pid {c.pid}): {shown}")

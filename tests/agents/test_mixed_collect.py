@@ -26,7 +26,7 @@ from rsal.transport import TransportArgs
 from tests.conftest import MAPS, free_port, rsal_cmd, wait_until
 
 HOME = (-22.0, 1.75)  # c1's start in maps/mixed_real_collect.world
-BIN = (-16.0, 1.9)  # bin0 there, blob0 in maps/mixed_virtual_collect.world
+BIN = (-14.0, 1.6)  # bin0 there, blob0 in maps/mixed_virtual_collect.world
 DELIVERED = 1.0  # m: the scenario's verdict, a bin within 1 m of home
 
 
@@ -85,6 +85,8 @@ def test_the_real_collector_fetches_the_bin_the_virtual_explorer_found(procs):
     assert re.search(r"\[run\] started rehearse \(pid \d+\): rsal rehearse maps/mixed_real_collect.world c1 ", out)
     assert out.index("[run] rehearsed robot c1 up after") < out.index("[run] started collector1 (pid")
     assert "driver #1 (p2os): connected to c1 (Pioneer P2DX)" in out  # through the real driver
+    # the real world runs in real time: every agent on the wall clock, not the virtual simulation's
+    assert "on the simulation's clock" not in out
     # the virtual explorer found the blob where it is (AMCL's 0.30 m plus the camera's range estimate)
     m = re.search(r"explorer1: new green blob at \((-?[\d.]+), (-?[\d.]+)\)", out)
     assert m and math.dist((float(m.group(1)), float(m.group(2))), BIN) < 0.5, out
@@ -96,10 +98,10 @@ def test_the_real_collector_fetches_the_bin_the_virtual_explorer_found(procs):
     assert len(s) > 50, f"only {len(s)} true-pose samples"
     assert math.dist(s[0][2][:2], BIN) < 0.05  # the bin lay at the blob's spot
     farthest = max(math.dist(c1[:2], HOME) for _, c1, _, _ in s)
-    assert farthest > 4.5, f"c1 got only {farthest:.2f} m from home (ground truth)"
+    assert farthest > 6.5, f"c1 got only {farthest:.2f} m from home (ground truth)"
     end = s[-1][2][:2]
     assert math.dist(end, HOME) < DELIVERED, f"the real bin ended at {end}, not home (ground truth)"
-    assert math.dist(end, BIN) > 4.0  # it was carried, not found lying home
+    assert math.dist(end, BIN) > 6.0  # it was carried, not found lying home
     # the proxy followed c1: the ViewAgent mirrored its broadcast (AMCL) pose into the virtual world
     moving = [math.dist(c1[:2], px[:2]) for _, c1, _, px in s if px is not None and math.dist(c1[:2], HOME) > 0.5]
     assert len(moving) > 20
