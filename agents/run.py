@@ -6,8 +6,12 @@ session, PIDs kept and printed, output relayed):
 
 1. the simulator, ``rsal sim WORLD --listen EP`` (if the application has one), and waits until its
    ``sim:simulation:0`` device is alive;
-2. the device servers, ``rsal serve CONFIG --connect EP``;
-3. one agent host, ``python -m agents.hostproc SCENARIO --app NAME --host GROUP [--set ..]``, per host
+2. the rehearsal of a "real" robot, ``rsal rehearse WORLD ROBOT --connect EP`` (if the application
+   has a ``rehearse`` section: emulated hardware in "the real world", served by the real drivers,
+   docs/hardware.md), and waits until the robot's base, laser (and planner) and the real world's
+   simulation device are alive, since an agent builds its robot from the devices present;
+3. the device servers, ``rsal serve CONFIG --connect EP``;
+4. one agent host, ``python -m agents.hostproc SCENARIO --app NAME --host GROUP [--set ..]``, per host
    group of agents (:mod:`agents.hostproc`): it reads the same scenario file with the same
    overrides, so the scenario has one schema, :mod:`agents.scenario`.
 
@@ -19,16 +23,17 @@ sender is reported once (``docs/security.md``, "Open fabric"). It prints every o
 a progress line every few seconds, and relays
 its children's output with their name in front. The run ends with success (exit 0) when the end
 condition holds — ``count`` distinct subjects of ok ``event`` outcomes, or ``duration`` seconds
-(counted from the moment every agent is alive) without a failed outcome — or at once with the
-``ok`` of an outcome marked ``final``. With a simulator every claim is checked against its ground
-truth first (:mod:`agents.verdict`; also with ``--connect`` to a fabric whose simulation device is
-alive): a catch, an arrival or a final verdict the true poses
-contradict counts as failed, and a duration run's ``travel``/``clearance`` come from sampled true
-poses. It fails (exit 1) on its timeout, a failed final outcome or a
-child that exits unexpectedly (one line naming it and its last stderr line). A bad scenario file or
-argument exits 2 with one line; SIGINT/SIGTERM stop everything and exit 130. Stopping sends SIGTERM
-to the agent hosts, then the servers, then the simulator, each with a deadline, and SIGKILL by PID
-to whatever is left. The format and the lines printed are described in ``docs/scenarios.md``.
+(counted from the moment every agent is alive) without a failed outcome — or at once with the ``ok``
+of an outcome marked ``final``. With a simulator every claim is checked against its ground truth
+first (:mod:`agents.verdict`; a rehearsed robot's against the rehearsal's world, "the real world";
+also with ``--connect`` to a fabric whose simulation device is alive): a catch, an arrival, a
+delivery or a final verdict the true poses contradict counts as failed, and a duration run's
+``travel``/``clearance`` come from sampled true poses. It fails (exit 1) on its timeout, a failed
+final outcome or a child that exits unexpectedly (one line naming it and its last stderr line). A
+bad scenario file or argument exits 2 with one line; SIGINT/SIGTERM stop everything and exit 130.
+Stopping sends SIGTERM to the agent hosts, then the servers, then the rehearsal, then the simulator,
+each with a deadline, and SIGKILL by PID to whatever is left. The format and the lines printed are
+described in ``docs/scenarios.md``.
 
 (Somewhat over 500 lines: the runner's phases, end conditions and summary are one state machine
 over one event queue; the processes themselves are :mod:`rsal.procs`'s.)
@@ -63,7 +68,9 @@ PROG = "rsal run"
 SIM_NODE = "sim"  # the node of the simulator that rsal sim serves
 SIM_DEVICE = f"rsal/{SIM_NODE}/simulation/0"
 #: seconds each kind of child gets to exit after SIGTERM before SIGKILL
-STOP_DEADLINES = {"host": 15.0, "server": 10.0, "sim": 10.0}
+STOP_DEADLINES = {"host": 15.0, "server": 10.0, "rehearse": 15.0, "sim": 10.0}
+#: what each kind of child is called in a failure line
+CHILD_KINDS = {"sim": "the simulator", "rehearse": "the rehearsal", "server": "device server", "host": "agent host"}
 
 
 def _err(text: str) -> None:
@@ -158,8 +165,9 @@ class Runner:
         targs.config = getattr(self.args, "config", None)
         targs.cfg = list(getattr(self.args, "cfg", None) or [])
         self.session = open_session(targs)
-        if self.app.simulator is not None:
+        if self.app.simulator is not None and self.app.rehearse is None:  # a rehearsal: the wall clock
             self.sim_clock = SimClock().follow(self.session, SIM_NODE)
+        if self.app.simulator is not None or self.app.rehearse is not None:
             self.truth = GroundTruth(self.session, self.sc, self.app)
         q = self.events
 
@@ -202,8 +210,11 @@ class Runner:
     # ------------------------------------------------------------------ children
     def _start(self, name: str, kind: str, argv: list[str], shown: str) -> Child:
         env = python_env(self.sc.source.parent.resolve())
-        if kind == "host" and self.app.simulator is not None:
+        if kind == "host" and self.app.simulator is not None and self.app.rehearse is None:
             env[clock_env] = SIM_NODE  # the agents follow the simulation's clock (rsal.clock)
+        # With a rehearsal they keep the wall clock, as agents of real robots do: the real world runs
+        # in real time, whatever pace a loaded virtual simulator manages (a real robot's broadcasts
+        # on the virtual clock fall behind the robot, and so does its proxy).
         c = Child(name, argv, kind=kind, shown=shown, env=env, forward=self.out.line, stderr_apart=True)
         self.children.append(c)
         self.out.say(f"started {name} (pid {c.pid}): {shown}")
@@ -224,7 +235,23 @@ class Runner:
         argv = [sys.executable, "-m", "rsal.cli", "sim", str(s.world), *flags]
         self._start("sim", "sim", argv, " ".join(["rsal sim", _rel(s.world), *flags]))
 
+    def _start_rehearsal(self) -> None:
+        r = self.app.rehearse
+        flags = self._member_flags()  # it joins the fabric (the simulator or the runner listens)
+        for key in ("nav", "pioneer", "laser", "seed"):
+            if getattr(r, key) is not None:
+                flags += [f"--{key}", str(getattr(r, key))]
+        flags += ["--node", r.node]
+        argv = [sys.executable, "-m", "rsal.cli", "rehearse", str(r.world), r.robot, *flags]
+        self._start("rehearse", "rehearse", argv, " ".join(["rsal rehearse", _rel(r.world), r.robot, *flags]))
+
+    def _rehearsed(self) -> bool:
+        """Whether every device the rehearsed robot is awaited by is alive."""
+        return all(f"rsal/{d}" in self.devices for d in self.app.rehearse.devices)
+
     def _start_rest(self) -> None:
+        if self.truth is not None:
+            self.truth.record_homes()  # where the collectors truly start, before they move
         for i, cfg in enumerate(self.app.servers):
             name = "serve" if len(self.app.servers) == 1 else f"serve{i}"
             flags = self._member_flags()
@@ -251,7 +278,7 @@ class Runner:
         def killed(c: Child, waited: float) -> None:
             self.out.say(f"{c.name} (pid {c.pid}) did not stop within {waited:g} s; killed")
 
-        for kind in ("host", "server", "sim"):
+        for kind in ("host", "server", "rehearse", "sim"):
             group = [c for c in self.children if c.kind == kind and c.poll() is None]
             stop_all(group, [(signal.SIGTERM, STOP_DEADLINES[kind])], killed)
         for c in self.children:
@@ -313,6 +340,15 @@ class Runner:
         elif kind == "device":
             (self.devices.add if what else self.devices.discard)(who)
 
+    def _next_phase(self) -> None:
+        """After the simulator (if any): the rehearsal, if any, else the servers and agents."""
+        if self.app.rehearse is not None:
+            self._start_rehearsal()
+            self.phase = "rehearse"
+        else:
+            self._start_rest()
+            self.phase = "run"
+
     def _now(self) -> float:
         """Seconds of the run: the wall clock until the simulation's clock has started, then that
         moment plus simulated seconds (a paused simulation pauses durations and timeouts)."""
@@ -343,8 +379,8 @@ class Runner:
             if c.kind == "host" and rc == 0:
                 self.out.say(f"agent host {c.name} exited: its agents ended")
                 continue
-            what = {"sim": "the simulator", "server": "device server", "host": "agent host"}[c.kind]
-            name = "" if c.kind == "sim" else f" {c.name!r}"
+            what = CHILD_KINDS[c.kind]
+            name = "" if c.kind in ("sim", "rehearse") else f" {c.name!r}"
             self.result = (False, f"{what}{name} (pid {c.pid}) {c.exit_reason()}")
             return
         t = self.tally
@@ -374,6 +410,9 @@ class Runner:
         if now - t0 >= self.timeout:
             if self.phase == "sim":
                 why = f"the simulator's devices did not appear within {self.timeout:g} s"
+            elif self.phase == "rehearse":
+                missing = [d for d in self.app.rehearse.devices if f"rsal/{d}" not in self.devices]
+                why = f"the rehearsed robot's devices did not appear within {self.timeout:g} s: {', '.join(missing)}"
             else:
                 up = len([a for a in self.expected if a in self.ever_alive])
                 why = f"timeout after {self.timeout:g} s ({self._count_text()}, {up}/{len(self.expected)} agents up)"
@@ -405,6 +444,9 @@ class Runner:
             now = self._now()
             if self.phase == "sim" and SIM_DEVICE in self.devices:
                 self.out.say(f"simulator up after {now - t0:.1f} s: {len(self.devices)} device(s)")
+                self._next_phase()
+            if self.phase == "rehearse" and self._rehearsed():
+                self.out.say(f"rehearsed robot {self.app.rehearse.robot} up after {now - t0:.1f} s")
                 self._start_rest()
                 self.phase = "run"
             self._sample_truth(now)
@@ -413,6 +455,8 @@ class Runner:
                 next_progress = now + self.progress
                 if self.phase == "sim":
                     self.out.say(f"t={now - t0:.1f} s waiting for the simulator's devices")
+                elif self.phase == "rehearse":
+                    self.out.say(f"t={now - t0:.1f} s waiting for the rehearsed robot {self.app.rehearse.robot}")
                 else:
                     n = len([a for a in self.expected if a in self.alive])
                     self.out.say(f"t={now - t0:.1f} s agents {n}/{len(self.expected)} alive, {self._count_text()}")
@@ -438,8 +482,7 @@ class Runner:
                 self.phase = "sim"
                 self._start_sim()
             else:
-                self._start_rest()
-                self.phase = "run"
+                self._next_phase()
             self._loop(t0)
             if self.signalled:
                 interrupted = self.signalled[0]
@@ -516,6 +559,9 @@ def run_scenario(args: argparse.Namespace) -> int:
         check_classes(sc, app)
     except ScenarioError as e:
         _err(str(e))
+        return 2
+    if app.rehearse is not None and getattr(args, "speedup", None) not in (None, 1.0):
+        _err(f"--speedup {args.speedup:g}: application {name!r} rehearses a real robot, which runs in real time")
         return 2
     agents_config = getattr(args, "agents_config", None)
     if agents_config and not os.path.isfile(agents_config):

@@ -12,6 +12,7 @@ scenarios of 4.2). A scenario file plays that role here, in YAML (or TOML, same 
       virtual:
         description: 2 hunters chase 1 prey
         simulator: {world: ../../maps/hunt.world, nav: vfh, nav_robots: [r1, r2], speedup: 1.0}
+        rehearse: {world: ../../maps/real.world, robot: c1, nav: vfh}   # a "real" robot (optional)
         servers: []
         agents:
           - {type: prey, robot: r0}
@@ -54,14 +55,18 @@ __all__ = [
     "constructor_kwargs",
     "load_scenario",
     "parse_set",
+    "RehearsalSpec",
 ]
 
 #: seconds after which a run without another end fails
 DEFAULT_TIMEOUT = 300.0
 
 _TOP = ("scenario", "description", "arguments", "agent_types", "applications")
-_APP = ("description", "simulator", "servers", "agents", "end")
+_APP = ("description", "simulator", "rehearse", "servers", "agents", "end")
 _SIM = ("world", "nav", "nav_robots", "speedup", "seed")
+_REHEARSE = ("world", "robot", "nav", "pioneer", "laser", "node", "seed")
+_PIONEERS = ("P2DX", "P3AT")  # mrs_bridge.emulators.p2os.DIST_CONV
+_LASERS = ("URG-04LX", "UTM-30LX")  # mrs_bridge.emulators.urg.SENSORS
 _AGENT = ("type", "robot", "id", "args", "host", "count")
 _END = ("event", "count", "timeout", "duration", "travel", "clearance")
 _NAV = ("vfh", "nd", "snd")
@@ -80,6 +85,28 @@ class SimulatorSpec:
     nav_robots: tuple[str, ...] = ()
     speedup: float | None = None
     seed: int | None = None
+
+
+@dataclass(frozen=True)
+class RehearsalSpec:
+    """A "real" robot on emulated hardware, started after the simulator: ``rsal rehearse WORLD
+    ROBOT [--nav ..] [--pioneer ..] [--laser ..] [--node ..] [--seed ..]`` (docs/hardware.md). Its
+    world is "the real world": its simulation device ``NODE:simulation:0`` is the ground truth of
+    ``robot``, which the run waits for (its base, its laser and, with ``nav``, its planner)."""
+
+    world: Path
+    robot: str
+    nav: str | None = None
+    pioneer: str | None = None
+    laser: str | None = None
+    node: str = "world"
+    seed: int | None = None
+
+    @property
+    def devices(self) -> tuple[str, ...]:
+        """The devices (``node/iface/idx``) whose liveliness says the rehearsed robot is served."""
+        own = [f"{self.robot}/position2d/0", f"{self.robot}/laser/0", f"{self.node}/simulation/0"]
+        return tuple(own + ([f"{self.robot}/planner/0"] if self.nav else []))
 
 
 @dataclass(frozen=True)
@@ -123,6 +150,7 @@ class Application:
     servers: tuple[Path, ...]
     agents: tuple[AgentEntry, ...]
     end: End
+    rehearse: RehearsalSpec | None = None
 
     def groups(self) -> dict[str, list[AgentEntry]]:
         """Agent-host processes to start: group name -> its agents, in file order."""
@@ -282,6 +310,9 @@ def _application(c: _Ctx, name: str, raw: Any, agent_types: dict[str, str]) -> A
     sim = None
     if m.get("simulator") is not None:
         sim = _simulator(c, f"{where}.simulator", m["simulator"])
+    rehearse = None
+    if m.get("rehearse") is not None:
+        rehearse = _rehearse(c, f"{where}.rehearse", m["rehearse"], sim)
     servers_raw = m.get("servers") or []
     if not isinstance(servers_raw, list):
         raise c.fail(f"{where}.servers", f"must be a list of server configuration files, not {_kind(servers_raw)}")
@@ -306,7 +337,7 @@ def _application(c: _Ctx, name: str, raw: Any, agent_types: dict[str, str]) -> A
     if truth and sim is None:
         why = "is judged on the simulator's ground truth; add a 'simulator' or remove it"
         raise c.fail(f"{where}.end.{truth[0]}", why)
-    return Application(name, description, sim, servers, tuple(agents), end)
+    return Application(name, description, sim, servers, tuple(agents), end, rehearse)
 
 
 def _simulator(c: _Ctx, where: str, raw: Any) -> SimulatorSpec:
@@ -325,6 +356,35 @@ def _simulator(c: _Ctx, where: str, raw: Any) -> SimulatorSpec:
     speedup = None if m.get("speedup") is None else c.number(m["speedup"], f"{where}.speedup")
     seed = None if m.get("seed") is None else c.whole(m["seed"], f"{where}.seed", lo=0)
     return SimulatorSpec(world, nav, tuple(robots), speedup, seed)
+
+
+def _rehearse(c: _Ctx, where: str, raw: Any, sim: SimulatorSpec | None) -> RehearsalSpec:
+    m = c.map(raw, where, _REHEARSE, required=("world", "robot"))
+    world = c.path(m["world"], f"{where}.world")
+    robot = c.text(m["robot"], f"{where}.robot")
+    node = "world" if m.get("node") is None else c.text(m["node"], f"{where}.node")
+    for key, val in (("robot", robot), ("node", node)):
+        if not all(ch.isalnum() or ch in "_-" for ch in val):
+            raise c.fail(f"{where}.{key}", f"{val!r} is no node name; use letters, digits, _ and -")
+    if sim is not None and node == "sim":
+        raise c.fail(f"{where}.node", "'sim' is the virtual simulator's node; name the real world's another")
+    if sim is not None and sim.speedup not in (None, 1.0):
+        why = f"the rehearsed real world runs in real time; remove speedup {sim.speedup:g} or the rehearsal"
+        raise c.fail(f"{where[: -len('.rehearse')]}.simulator.speedup", why)
+    nav = m.get("nav")
+    if nav is not None and nav not in _NAV:
+        raise c.fail(f"{where}.nav", f"unknown local planner {nav!r}; use one of {', '.join(_NAV)}")
+    choices = {"pioneer": _PIONEERS, "laser": _LASERS}
+    picked = {}
+    for key, allowed in choices.items():
+        v = m.get(key)
+        if v is not None and v not in allowed:
+            near = did_you_mean(str(v), allowed)
+            hint = f"did you mean {near!r}?" if near else f"use one of {', '.join(allowed)}"
+            raise c.fail(f"{where}.{key}", f"unknown {key} {v!r}; {hint}")
+        picked[key] = v
+    seed = None if m.get("seed") is None else c.whole(m["seed"], f"{where}.seed", lo=0)
+    return RehearsalSpec(world, robot, nav, picked["pioneer"], picked["laser"], node, seed)
 
 
 def _agents(c: _Ctx, where: str, raw: Any, agent_types: dict[str, str], per_type: dict[str, int]) -> list[AgentEntry]:

@@ -14,12 +14,22 @@ agrees:
   :data:`ARRIVE_TOLERANCE` of it;
 - an ok final ``verdict`` after ``assigned`` outcomes with places (Distribution, thesis 4.2.4):
   every assigned robot truly within :data:`ARRIVE_TOLERANCE` of its last assigned target;
+- ``delivered`` (Find and Collect, thesis 4.2.2; subject: the master's blob id): one more object
+  of a collector's world (not a robot, not a proxy) than there were deliveries before truly lies
+  within :data:`DELIVER_TOLERANCE` of a collector's home -- its ``home`` argument, else where its
+  robot truly stood when the agents were started (:meth:`GroundTruth.record_homes`); collectors
+  that are no robot of any simulated world (real robots, of which the virtual world has a proxy at
+  most) are not judged, and a delivery no collector can be judged for is let stand, with a note;
 - a ``duration`` run with ``end.travel`` / ``end.clearance``: the true poses of every agent's robot,
   sampled every :data:`SAMPLE_PERIOD` seconds, must add up to at least ``travel`` metres each and
   keep the robot's centre at least ``clearance`` metres from every occupied cell of the map
   (``sim:map:0``, its Euclidean distance transform, ``scipy.ndimage.distance_transform_edt``).
 
 A claim the truth contradicts counts as a failed outcome, with the reason in one line.
+
+A robot rehearsed on emulated hardware (the application's ``rehearse`` section) lives in "the real
+world", the rehearsal's world: its true pose, and the bins a collector of it fetches, are asked of
+that world's simulation device (``<node>:simulation:0``), every other robot's of the simulator's.
 """
 
 from __future__ import annotations
@@ -29,7 +39,7 @@ import math
 
 from .scenario import Application, Scenario
 
-__all__ = ["ARRIVE_TOLERANCE", "CATCH_SLACK", "SAMPLE_PERIOD", "GroundTruth"]
+__all__ = ["ARRIVE_TOLERANCE", "CATCH_SLACK", "DELIVER_TOLERANCE", "SAMPLE_PERIOD", "GroundTruth"]
 
 #: m beyond the capture distance a true catch may lie: the hunter judges on its AMCL pose (the
 #: thesis's 0.30 m) against the prey's last broadcast (2 Hz at 0.2 m/s: 0.1 m old at most), and the
@@ -38,6 +48,9 @@ CATCH_SLACK = 0.5
 #: m between a robot that arrived and its goal: Wavefront's 0.4 m goal tolerance plus the thesis's
 #: 0.30 m localization requirement
 ARRIVE_TOLERANCE = 0.7
+#: m between a delivered bin and its collector's home (the thesis's Find and Collect brings the
+#: blob "home"; the collector stops within Wavefront's 0.4 m of it and puts the bin down in front)
+DELIVER_TOLERANCE = 1.0
 #: seconds between true-pose samples of a duration run
 SAMPLE_PERIOD = 0.5
 SIM_DEVICE = "sim:simulation:0"
@@ -58,15 +71,21 @@ def _default(cls_name: str, arg: str) -> float | None:
 class GroundTruth:
     """Checks ``app``'s outcomes against the simulator on the runner's ``session``."""
 
-    def __init__(self, session, sc: Scenario, app: Application, *, sim=None, get_map=None):
-        """``sim`` (a :class:`rsal.interfaces.simulation.Simulation`-like ``get_pose``) and ``get_map``
-        (returns a :class:`rsal.interfaces.map.MapData`) replace the devices on ``session`` (tests)."""
+    def __init__(self, session, sc: Scenario, app: Application, *, sim=None, get_map=None, real=None):
+        """``sim`` (a :class:`rsal.interfaces.simulation.Simulation`-like ``get_pose`` and ``models``),
+        ``real`` (the same for a rehearsal's world) and ``get_map`` (returns a
+        :class:`rsal.interfaces.map.MapData`) replace the devices on ``session`` (tests)."""
         self.fabric = None
-        if sim is None or get_map is None:
+        if sim is None or get_map is None or (app.rehearse is not None and real is None):
             from rsal.client import Fabric
 
             self.fabric = Fabric(session, own_session=False)
         self.sim = sim or self.fabric.device(SIM_DEVICE)
+        #: robot -> the simulation device of its world (a rehearsed robot's: the real world)
+        self.world_of: dict[str, object] = {}
+        if app.rehearse is not None:
+            r = app.rehearse
+            self.world_of[r.robot] = real or self.fabric.device(f"{r.node}:simulation:0")
         self.get_map = get_map or (lambda: self.fabric.device(MAP_DEVICE).get_map(timeout=10.0))
         self.sc, self.app, self.end = sc, app, app.end
         self.agents = {a.id: a for a in app.agents}
@@ -77,15 +96,44 @@ class GroundTruth:
         self.nearest_wall: dict[str, float] = {}
         self._last: dict[str, tuple[float, float]] = {}
         self._clear: tuple | None = None  # (distance grid m, origin, resolution)
+        self.homes: dict[str, tuple[float, float]] = {}  # collector robot -> its home
+        self.delivered = 0  # deliveries the truth confirmed
 
     @property
     def samples(self) -> bool:
         """Whether the run needs true poses sampled (``end.travel`` or ``end.clearance``)."""
         return self.end.travel is not None or self.end.clearance is not None
 
+    def _world(self, robot: str):
+        return self.world_of.get(robot, self.sim)
+
     def _where(self, robot: str) -> tuple[float, float]:
-        p = self.sim.get_pose(robot)
+        p = self._world(robot).get_pose(robot)
         return p.x, p.y
+
+    def collectors(self) -> list:
+        """The agents that fetch things home (their class offers ``collect``), with a robot."""
+        from .registry import resolve
+
+        out = []
+        for a in self.app.agents:
+            try:
+                caps = getattr(resolve(a.cls), "capabilities", ())
+            except Exception:
+                continue
+            if a.robot and "collect" in caps:
+                out.append(a)
+        return out
+
+    def record_homes(self) -> None:
+        """Each collector's home: its ``home`` argument, else its robot's true pose now (called
+        before the agents start). A world that does not answer leaves that home unknown."""
+        for a in self.collectors():
+            home = a.args.get("home", self.sc.arguments.get("home"))
+            try:
+                self.homes[a.robot] = (float(home[0]), float(home[1])) if home else self._where(a.robot)
+            except Exception:  # judged as unavailable when a delivery is claimed
+                pass
 
     # ------------------------------------------------------------------ claims
     def check(self, sender: str, o) -> str | None:
@@ -97,6 +145,8 @@ class GroundTruth:
                 self.assigned[o.subject] = o.at
             elif o.event == "caught" and o.ok:
                 return self._caught(sender, o)
+            elif o.event == "delivered" and o.ok and self.collectors():
+                return self._delivered(o)
             elif o.event == "arrived" and o.ok and o.at is not None:
                 d = math.dist(self._where(o.subject), o.at)
                 if d > ARRIVE_TOLERANCE:
@@ -133,6 +183,46 @@ class GroundTruth:
             )
         self.note = f"ground truth: {hunter.robot} {d:.2f} m from {o.subject} at the catch"
         return None
+
+    def _delivered(self, o) -> str | None:
+        """One more bin than confirmed before must truly lie within DELIVER_TOLERANCE of a home."""
+        robots = {a.robot for a in self.app.agents if a.robot}
+        near, nearest, judged = set(), (math.inf, "", ""), 0
+        for a in self.collectors():
+            world = self._world(a.robot)
+            models = world.models()
+            if a.robot not in models.get("robots", []):  # a real robot (its proxy at most): no truth here
+                continue
+            if a.robot not in self.homes:
+                return f"ground truth: {a.robot}'s home is unknown (its world did not answer at the start)"
+            judged += 1
+            home = self.homes[a.robot]
+            for name in models.get("objects", []):
+                if name in robots:  # a proxy of a real robot, not a bin
+                    continue
+                d = math.dist(self._where_in(world, name), home)
+                if d <= DELIVER_TOLERANCE:
+                    near.add((id(world), name))
+                if d < nearest[0]:
+                    nearest = (d, name, a.robot)
+        if not judged:
+            self.note = "ground truth: no collector lives in a simulated world; the delivery is not judged"
+            return None
+        if len(near) <= self.delivered:
+            d, name, robot = nearest
+            closest = f"; nearest: {name} {d:.2f} m from {robot}'s home {_xy(self.homes[robot])}" if name else ""
+            return (
+                f"ground truth: {len(near)} bin(s) within {DELIVER_TOLERANCE:g} m of a collector's home "
+                f"for {self.delivered + 1} deliveries{closest}"
+            )
+        self.delivered += 1
+        self.note = f"ground truth: {len(near)} bin(s) within {DELIVER_TOLERANCE:g} m of a collector's home"
+        return None
+
+    @staticmethod
+    def _where_in(world, name: str) -> tuple[float, float]:
+        p = world.get_pose(name)
+        return p.x, p.y
 
     # ------------------------------------------------------------------ duration runs
     def _load_clearance(self) -> None:

@@ -275,3 +275,46 @@ def test_constructor_arguments_are_read_down_the_mro_through_kwargs():
     assert kw == {"robot": "r0", "index": 1, "report_every": 2.0, "speed": 0.2}
     agent = EscapeAgent("prey", **kw)
     assert (agent.index, agent.report_every, agent.speed) == (1, 2.0, 0.2)
+
+
+REHEARSED = """
+scenario: mixed
+agent_types: {reporter: tests.agents.scenario_agents:Reporter}
+applications:
+  mixed:
+    simulator: {world: WORLD}
+    rehearse: {world: WORLD, robot: r0, nav: vfh, laser: UTM-30LX}
+    agents:
+      - {type: reporter, robot: r0}
+    end: {event: delivered}
+"""
+
+
+def test_a_rehearse_section_names_the_real_world_and_the_robot_it_waits_for(tmp_path):
+    app = load_scenario(write(tmp_path, REHEARSED)).applications["mixed"]
+    r = app.rehearse
+    assert r.world == (MAPS / "testroom.world").resolve() and r.robot == "r0" and r.nav == "vfh"
+    assert r.laser == "UTM-30LX" and r.pioneer is None and r.node == "world" and r.seed is None
+    assert r.devices == ("r0/position2d/0", "r0/laser/0", "world/simulation/0", "r0/planner/0")
+    plain = load_scenario(write(tmp_path, REHEARSED.replace(", nav: vfh", ""))).applications["mixed"]
+    assert plain.rehearse.devices == ("r0/position2d/0", "r0/laser/0", "world/simulation/0")
+    assert load_scenario(write(tmp_path, GOOD)).applications["virtual"].rehearse is None
+    found = load_scenario(ROOT / "deploy" / "scenarios" / "find_collect.yaml").applications["mixed"]
+    assert found.rehearse.robot == "c1" and found.rehearse.world.name == "mixed_real_collect.world"
+
+
+def test_rehearse_section_mistakes_are_one_line(tmp_path):
+    msg = error(tmp_path, REHEARSED.replace("robot: r0, nav", "robt: r0, nav"))
+    assert "applications.mixed.rehearse.robt: unknown key; did you mean 'robot'?" in msg
+    msg = error(tmp_path, REHEARSED.replace("robot: r0, nav", "nav"))
+    assert "applications.mixed.rehearse: the key 'robot' is missing; add it" in msg
+    msg = error(tmp_path, REHEARSED.replace("laser: UTM-30LX", "laser: UTM-30"))
+    assert "applications.mixed.rehearse.laser: unknown laser 'UTM-30'; did you mean 'UTM-30LX'?" in msg
+    msg = error(tmp_path, REHEARSED.replace("laser: UTM-30LX", "node: sim"))
+    assert "rehearse.node: 'sim' is the virtual simulator's node; name the real world's another" in msg
+    msg = error(tmp_path, REHEARSED.replace("robot: r0", "robot: r/0"))
+    assert "rehearse.robot: 'r/0' is no node name" in msg
+    msg = error(tmp_path, REHEARSED.replace("{world: WORLD}", "{world: WORLD, speedup: 3}"))
+    assert "applications.mixed.simulator.speedup: the rehearsed real world runs in real time" in msg
+    msg = error(tmp_path, REHEARSED.replace("rehearse: {world: WORLD,", "rehearse: {world: nowhere.world,"))
+    assert "rehearse.world: file 'nowhere.world' does not exist" in msg

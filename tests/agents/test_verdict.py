@@ -11,7 +11,7 @@ import pytest
 
 from agents.scenario import load_scenario
 from agents.services import Outcome
-from agents.verdict import ARRIVE_TOLERANCE, CATCH_SLACK, GroundTruth
+from agents.verdict import ARRIVE_TOLERANCE, CATCH_SLACK, DELIVER_TOLERANCE, GroundTruth
 from rsal.data import Position
 from rsal.interfaces.map import MapData
 
@@ -118,3 +118,89 @@ def test_truth_keys_need_a_simulator(tmp_path):
     )
     with pytest.raises(ScenarioError, match=r"applications\.a\.end\.travel.*ground truth; add a 'simulator'"):
         load_scenario(p)
+
+
+COLLECT = """
+scenario: c
+agent_types: {master: MasterAgent, collector: CollectAgent, explorer: ExploreAgent}
+applications:
+  mixed:
+    simulator: {world: w.world}
+    rehearse: {world: w.world, robot: c1}
+    agents:
+      - {type: master, id: master}
+      - {type: explorer, robot: e1, id: ex}
+      - {type: collector, robot: c1, id: col1}
+    end: {event: delivered}
+  two:
+    simulator: {world: w.world}
+    agents:
+      - {type: master, id: master}
+      - {type: collector, robot: c1, id: col1}
+      - {type: collector, robot: c2, id: col2, args: {home: [5.0, 5.0, 90]}}
+    end: {event: delivered, count: 2}
+"""
+
+
+class FakeWorld(FakeSim):
+    def __init__(self, poses, objects):
+        super().__init__(poses)
+        self.objects = list(objects)
+
+    def models(self):
+        return {"robots": [n for n in self.poses if n not in self.objects], "objects": self.objects}
+
+
+def test_a_delivery_counts_only_with_a_bin_truly_home_in_the_collectors_world(tmp_path):
+    """Mixed reality: c1 is rehearsed, so its home and the bin are the real world's, not the
+    virtual one's (where the blob the explorer saw stays put and c1's proxy stands)."""
+    (tmp_path / "w.world").write_text("")
+    (tmp_path / "s.yaml").write_text(COLLECT)
+    sc = load_scenario(tmp_path / "s.yaml")
+    real = FakeWorld({"c1": (-22.0, 1.75), "bin0": (-16.0, 1.9)}, ["bin0"])
+    virtual = FakeWorld({"e1": (-19.0, 1.75), "c1": (-22.0, 1.75), "blob0": (-22.0, 1.8)}, ["c1", "blob0"])
+    g = GroundTruth(None, sc, sc.applications["mixed"], sim=virtual, get_map=room, real=real)
+    assert [a.robot for a in g.collectors()] == ["c1"]
+    g.record_homes()
+    real.poses["c1"] = (-17.0, 1.8)  # on its way: the home stays where it started
+    assert g.homes == {"c1": (-22.0, 1.75)}
+    why = g.check("master", Outcome("delivered", "blob0", "blob0 delivered home by col1"))
+    assert why == (
+        f"ground truth: 0 bin(s) within {DELIVER_TOLERANCE:g} m of a collector's home for 1 deliveries; "
+        "nearest: bin0 6.00 m from c1's home (-22.00, 1.75)"
+    )
+    real.poses["bin0"] = (-21.3, 1.6)
+    assert g.check("master", Outcome("delivered", "blob0", "blob0 delivered home by col1")) is None
+    assert g.note == "ground truth: 1 bin(s) within 1 m of a collector's home" and g.delivered == 1
+    # a second claim needs a second bin home
+    assert "1 bin(s) within 1 m of a collector's home for 2 deliveries" in g.check(
+        "master", Outcome("delivered", "blob1", "blob1 delivered home by col1")
+    )
+    assert g.check("master", Outcome("delivered", "blob1", "failed", ok=False)) is None  # no claim
+
+
+def test_a_real_collector_without_a_rehearsal_is_not_judged_in_the_virtual_world(tmp_path):
+    """On real hardware c1 is only a proxy of the virtual world, where the blob it fetched stays:
+    that world cannot judge the delivery, and must not refuse it."""
+    (tmp_path / "w.world").write_text("")
+    (tmp_path / "s.yaml").write_text(COLLECT.replace("    rehearse: {world: w.world, robot: c1}\n", ""))
+    sc = load_scenario(tmp_path / "s.yaml")
+    assert sc.applications["mixed"].rehearse is None
+    virtual = FakeWorld({"e1": (-19.0, 1.75), "c1": (-22.0, 1.75), "blob0": (-16.0, 1.9)}, ["c1", "blob0"])
+    g = GroundTruth(None, sc, sc.applications["mixed"], sim=virtual, get_map=room)
+    g.record_homes()
+    assert g.check("master", Outcome("delivered", "blob0", "blob0 delivered home by col1")) is None
+    assert g.note == "ground truth: no collector lives in a simulated world; the delivery is not judged"
+
+
+def test_a_collectors_home_argument_is_its_home(tmp_path):
+    (tmp_path / "w.world").write_text("")
+    (tmp_path / "s.yaml").write_text(COLLECT)
+    sc = load_scenario(tmp_path / "s.yaml")
+    sim = FakeWorld({"c1": (0.0, 0.0), "c2": (9.0, 9.0), "b0": (5.5, 5.0), "b1": (0.5, 0.5)}, ["b0", "b1"])
+    g = GroundTruth(None, sc, sc.applications["two"], sim=sim, get_map=room)
+    g.record_homes()
+    assert g.homes == {"c1": (0.0, 0.0), "c2": (5.0, 5.0)}
+    assert g.check("master", Outcome("delivered", "blob0", "x")) is None
+    assert g.check("master", Outcome("delivered", "blob1", "x")) is None
+    assert g.note == "ground truth: 2 bin(s) within 1 m of a collector's home"
