@@ -219,7 +219,24 @@ TESTROOM = {
     "polygons": [],
 }
 
-MAPS = {"floor": FLOOR, "arena": ARENA, "testroom": TESTROOM}
+# =====================================================================================================
+# hall.png -- the arena with a hall in its middle, for the thesis's swarm with sonar localization:
+# the crowd of 100 Pioneer 3-AT (|x|, |y| <= 5.4 m) starts inside an 18 m x 18 m room of 0.3 m walls
+# with a 2 m door in the middle of each side, so a 5 m sonar ring finds walls within a few metres
+# of the crowd (in the open arena it sees only other robots, and AMCL has nothing to localize on).
+# =====================================================================================================
+_HALL, _DOOR, _T = 9.0, 1.0, 0.15
+HALL = dict(
+    ARENA,
+    file="hall.png",
+    walls=ARENA["walls"]
+    + [(-_HALL, s * _HALL - _T, -_DOOR, s * _HALL + _T) for s in (-1, 1)]
+    + [(_DOOR, s * _HALL - _T, _HALL, s * _HALL + _T) for s in (-1, 1)]
+    + [(s * _HALL - _T, -_HALL, s * _HALL + _T, -_DOOR) for s in (-1, 1)]
+    + [(s * _HALL - _T, _DOOR, s * _HALL + _T, _HALL) for s in (-1, 1)],
+)
+
+MAPS = {"floor": FLOOR, "arena": ARENA, "hall": HALL, "testroom": TESTROOM}
 
 
 # =====================================================================================================

@@ -25,7 +25,7 @@ SPEEDUP = "2"  # ten AMCL filters on sonar, ten VFH and Wavefront in the simulat
 
 
 def test_thesis_world_is_the_checked_in_file():
-    assert (MAPS / "swarm_thesis.world").read_text() == crowd_world(100, model="pioneer3at")
+    assert (MAPS / "swarm_thesis.world").read_text() == crowd_world(100, model="pioneer3at", bitmap="hall.png")
 
 
 def test_monitor_judges_contacts_and_localization_share():

@@ -274,7 +274,7 @@ def test_command_lines_run(args, tmp_path, procs):
         shutil.copy(MAPS / "generate.py", tmp_path / "maps" / "generate.py")
         p = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=120)
         assert p.returncode == 0, p.stderr
-        for f in ("floor.png", "arena.png", "testroom.png", "maps.yaml"):
+        for f in ("floor.png", "arena.png", "hall.png", "testroom.png", "maps.yaml", "hall.yaml"):
             assert (tmp_path / "maps" / f).read_bytes() == (MAPS / f).read_bytes(), f"{f} differs from generate.py"
         return
     if "--help" in args:

@@ -69,9 +69,10 @@ def crowd_world(
     return "\n".join(lines) + "\n"
 
 
-def write_crowd_world(path: str | Path, n: int, **kw) -> Path:
-    """Write :func:`crowd_world` to ``path`` with the arena bitmap referenced by absolute path."""
+def write_crowd_world(path: str | Path, n: int, *, bitmap: str = "arena.png", **kw) -> Path:
+    """Write :func:`crowd_world` to ``path`` with the bitmap (a file of ``maps/``, the arena by
+    default) referenced by absolute path."""
     p = Path(path)
-    arena = Path(__file__).resolve().parents[3] / "maps" / "arena.png"
+    arena = Path(__file__).resolve().parents[3] / "maps" / bitmap
     p.write_text(crowd_world(n, bitmap=str(arena), **kw))
     return p
