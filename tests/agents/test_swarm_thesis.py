@@ -10,14 +10,19 @@ count. The 100-robot run is ``deploy/scenarios/swarm.yaml`` app ``thesis`` (docs
 
 from __future__ import annotations
 
+import asyncio
 import math
+import time
 
 import numpy as np
 import pytest
 
-from agents.scenarios.swarm import crowd_world
-from agents.scenarios.swarm.thesis import ThesisSwarmMonitor
-from tests.conftest import MAPS
+from agents.runtime import AgentHost
+from agents.scenarios.swarm import crowd_world, write_crowd_world
+from agents.scenarios.swarm.thesis import ThesisSwarmAgent, ThesisSwarmMonitor
+from rsal.client import Fabric
+from rsal.transport import TransportArgs
+from tests.conftest import MAPS, free_port, rsal_cmd, wait_until
 
 N = 10
 DURATION = 30.0  # simulated s
@@ -42,3 +47,70 @@ def test_monitor_judges_contacts_and_localization_share():
     assert "localization within 0.5 m for 50.0 %" in m.judge(1.0).text
     with pytest.raises(ValueError, match="loc_share"):
         ThesisSwarmMonitor("m", robots=2, loc_share=1.5)
+
+
+async def _run(ep: str, follow) -> dict:
+    async with AgentHost.connect(TransportArgs(connect=[ep])) as host:
+        await asyncio.to_thread(follow, host.session)
+        agents = [ThesisSwarmAgent(f"swarm{i}", robot=f"r{i}", startup_timeout=120) for i in range(N)]
+        await asyncio.gather(*(host.start(a) for a in agents))
+        mon = ThesisSwarmMonitor("monitor", robots=N, duration=DURATION, startup_timeout=60, max_p99_ms=1000)
+        await host.start(mon)
+        deadline = time.monotonic() + DURATION * 6 + 120
+        while mon.verdict is None:
+            assert time.monotonic() < deadline, "no verdict from the monitor"
+            await asyncio.sleep(0.1)
+        for a in agents:
+            a.stop_broadcast()
+        sent = {a.id: a.sent for a in agents}
+
+        def drained() -> bool:
+            return all(a.senders.get(s, [0, -1, 0])[1] == sent[s] - 1 for a in agents for s in sent if s != a.id)
+
+        deadline = time.monotonic() + 30
+        while not drained() and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        got = want = 0
+        for a in agents:
+            for s, cnt in sent.items():
+                if s != a.id:
+                    first, _last, rec = a.senders.get(s, [0, -1, 0])
+                    got += rec
+                    want += cnt - first
+        return {"verdict": mon.verdict, "mon": mon, "got": got, "want": want, "frames": {a.frame for a in agents}}
+
+
+@pytest.mark.timeout(400)
+def test_ten_pioneer_3ats_with_full_stacks_swarm_and_are_judged_on_ground_truth(procs, sim_time, tmp_path):
+    world = write_crowd_world(tmp_path / "thesis10.world", N, model="pioneer3at", bitmap="hall.png")
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    sim = procs(rsal_cmd("sim", str(world), "--listen", ep, "--nav", "vfh", "--nav-robots", "*", "--speedup", SPEEDUP))
+    wait_until(lambda: "[sim]" in sim.output() or not sim.alive(), 60, "the simulator's start line")
+    assert sim.alive(), sim.output()
+    with Fabric.connect(TransportArgs(connect=[ep])) as fab:
+        node = fab.node("*:planner:0")
+        node.wait_for("*:planner:0", N, 60)  # every robot carries its planner, as in the thesis
+        simdev = fab.device("sim:simulation:0")
+        start = {f"r{i}": simdev.get_pose(f"r{i}") for i in range(N)}
+        r = asyncio.run(_run(ep, sim_time))
+        contacts = simdev.rpc("contacts")
+        end = {f"r{i}": simdev.get_pose(f"r{i}") for i in range(N)}
+        node.close()
+    v, mon = r["verdict"], r["mon"]
+    share, p95, worst = mon.localization()
+    errors = np.concatenate(mon.loc_errors)
+    print(f"\n{v.text}\ncontacts {contacts}\nlocalization share {share:.3f} p95 {p95:.2f} m worst {worst:.2f} m")
+    assert sim.alive(), sim.output()
+    # The crowd drove (true poses) and every broadcast reached every subscriber.
+    moved = [math.hypot(end[k].x - start[k].x, end[k].y - start[k].y) for k in start]
+    assert sum(d > 1.0 for d in moved) >= N - 2, f"the robots must drive: {moved}"
+    assert r["frames"] == {"map"}
+    assert r["got"] == r["want"] > 0, "every broadcast must reach every subscriber"
+    # The verdict is the simulator's: the monitor's contact counts are the contact counter's, and
+    # its localization samples cover the run; AMCL on sonar keeps most robot-time localized.
+    assert mon.contact_counts()[0] == sum(c[0] for c in contacts["robots"].values())
+    assert mon.contact_counts()[1] == contacts["robot_wall"]
+    assert f"{mon.contact_counts()[0]} robot-robot" in v.text
+    assert mon.samples >= DURATION / mon.sample_every * 0.8
+    assert np.median(errors) < 0.3, f"median localization error {np.median(errors):.2f} m"
+    assert v.ok == (share >= 0.95 and contacts["robot_robot"] == 0 and contacts["robot_wall"] == 0 and v.ok)
