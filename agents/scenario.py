@@ -250,11 +250,13 @@ def _read(path: Path) -> Any:
 
 
 # ---------------------------------------------------------------------------- loader
-def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> Scenario:
+def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None, *, check_files: bool = True) -> Scenario:
     """Parse and validate a scenario file; ``overrides`` replace global arguments (``--set``).
+    ``check_files=False`` leaves the files it names (world, server configurations) unchecked: a
+    host daemon's copy of the runner's scenario, whose files are on the runner's machine.
     Raises :class:`ScenarioError` with one line."""
     src = Path(path)
-    c = _Ctx(src)
+    c = _Ctx(src, check_files)
     doc = _read(src)
     if doc is None:
         raise c.fail("", "the file is empty; see docs/scenarios.md for the format")
