@@ -58,14 +58,14 @@ class LaunchRequest(_Msg):
 
     @classmethod
     def from_dict(cls, m: dict) -> LaunchRequest:
-        text = get_str(m, "scenario")
+        run, app, group, text = _name(m, "run"), get_str(m, "app"), get_str(m, "group"), get_str(m, "scenario")
         if len(text) > MAX_SCENARIO:
             raise MessageError(f"field 'scenario' is {len(text)} characters, over the {MAX_SCENARIO} a daemon takes")
         overrides = get_list(m, "overrides", lambda x: x if isinstance(x, str) else _bad("overrides"), False)
         return cls(
-            run=_name(m, "run"),
-            app=get_str(m, "app"),
-            group=get_str(m, "group"),
+            run=run,
+            app=app,
+            group=group,
             scenario=text,
             suffix=get_str(m, "suffix", ".yaml", choices=SUFFIXES),
             overrides=tuple(overrides),
