@@ -339,3 +339,44 @@ def test_the_command_line_makes_and_lists_identities(tmp_path):
         "r1\trobot\tnodes=r1",
         "hostA\tagents\tagents=hunter-1,hunter-2 services=send_position,outcome robots=r1",
     ]
+
+
+def test_only_the_operator_launches_on_a_host_daemon(fleet):
+    """Robot host r1 runs the host daemon ``hosts/r1`` (rsal host): the operator's requests reach it
+    and its launcher token is seen there; agent host A's requests and token never are, and robot
+    host r2 can neither announce a daemon that is not its own nor answer for r1's."""
+    _, s, _ = fleet
+    asked: list[bytes] = []
+    real = s["r1"].declare_queryable(
+        "hosts/r1/rpc/*", lambda q: (asked.append(q.payload.to_bytes()), q.reply(q.key_expr, ok_reply(who="r1")))
+    )
+    rogue = s["r2"].declare_queryable("hosts/r1/rpc/*", lambda q: q.reply(q.key_expr, ok_reply(who="r2")))
+    tokens = [s["r2"].liveliness().declare_token("hosts/r9"), s["r1"].liveliness().declare_token("hosts/r1")]
+    try:
+        seen = wait_until(lambda: _tokens(s["op"], "hosts/*") or None, 20, "r1's daemon token at the operator")
+        assert seen == ["hosts/r1"], f"host daemons seen by the operator: {seen}"
+
+        def operator_heard() -> bool:
+            for who, payload in (("hostA", b"agents"), ("op", b"operator")):
+                replies = [
+                    decode_map(r.ok.payload.to_bytes())["who"]
+                    for r in s[who].get("hosts/r1/rpc/launch", payload=payload, timeout=3)
+                    if r.ok
+                ]
+                assert who == "op" or replies == [], f"agent host A got answers {replies}"
+                if who == "op":
+                    assert replies in ([], ["r1"]), f"the operator's launch answered by {replies}"
+            return asked.count(b"operator") >= 3
+
+        wait_until(operator_heard, 30, "the operator's launch requests at r1's daemon", interval=0.05)
+        assert b"agents" not in asked, "an agent host's launch request reached the daemon"
+        runners = [s[n].liveliness().declare_token(f"hosts/r1/run/{n}/runner") for n in ("hostA", "op")]
+        try:
+            got = wait_until(lambda: _tokens(s["r1"], "hosts/r1/run/*/runner") or None, 20, "the operator's runner")
+            assert got == ["hosts/r1/run/op/runner"], f"launcher tokens seen by r1's daemon: {got}"
+        finally:
+            for t in runners:
+                t.undeclare()
+    finally:
+        for x in (real, rogue, *tokens):
+            x.undeclare()
