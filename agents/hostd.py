@@ -160,7 +160,7 @@ class HostDaemon:
     def say(self, text: str) -> None:
         print(f"[host {self.name}] {text}", flush=True)
 
-    def _child_flags(self) -> list[str]:
+    def child_flags(self) -> list[str]:
         """Transport flags of a launched agent host: the configuration's identity, else the daemon's
         own way onto the fabric (its --connect endpoints, or the ones it listens on)."""
         t = self.targs
@@ -239,7 +239,7 @@ class HostDaemon:
         argv += ["--host", req.group, "--report-every", f"{req.report_every:g}"]
         for item in req.overrides:
             argv += ["--set", item]
-        argv += self._child_flags()
+        argv += self.child_flags()
         env = python_env()
         if req.sim_clock:
             from rsal.clock import ENV as clock_env

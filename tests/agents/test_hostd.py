@@ -12,6 +12,7 @@ runs. Waits are conditions with deadlines; every process is cleaned up by PID.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import signal
@@ -219,3 +220,38 @@ def test_scenario_machine_is_one_per_host_group(tmp_path):
     p.write_text(p.read_text().replace("machine: robot1}", "machine: 'a b'}", 1))
     with pytest.raises(ScenarioError, match=r"agents\[0\]\.machine: machine 'a b' must be"):
         load_scenario(p)
+
+
+def test_awareness_starts_an_agent_for_a_robot_that_appears_and_stops_it_when_it_goes(tmp_path, procs, fabric):
+    from tests.truth import Truth
+
+    ep, _ = fabric
+    cfg = tmp_path / "host.toml"
+    cfg.write_text('name = "robot1"\n[awareness]\nclass = "WallfollowAgent"\nrobots = ["r*"]\n')
+    d = procs(rsal_cmd("host", "--host-config", str(cfg), "--connect", ep))
+    wait_until(lambda: "up: token hosts/robot1" in d.output() or not d.alive(), 30, "the daemon up")
+    assert d.alive(), d.output()
+    sim = procs(rsal_cmd("sim", str(MAPS / "testroom.world"), "--connect", ep, "--truth"))
+    up = wait_until(
+        lambda: re.search(r"aware: robot r0 appeared; started WallfollowAgent for it \(pid (\d+)\)", d.output()),
+        30,
+        "the awareness agent for r0",
+    )
+    agent = int(up.group(1))
+    assert "robot sim" not in d.output()  # the simulation's node has no base: no agent for it
+    s = open_session(TransportArgs(connect=[ep]))
+    truth = Truth(s, ["r0"])
+    try:
+        wait_until(truth.ready, 20, "r0's true pose")
+        start = truth.pose("r0")
+        wait_until(
+            lambda: math.hypot(truth.pose("r0").x - start.x, truth.pose("r0").y - start.y) > 0.3,
+            30,
+            "r0 to drive (ground truth)",
+        )
+    finally:
+        truth.close()
+        s.close()
+    sim.stop()
+    wait_until(lambda: "aware: robot r0's devices went; stopping its WallfollowAgent" in d.output(), 20, "the stop")
+    wait_until(lambda: pid_gone(agent), 20, "the awareness agent to end")
