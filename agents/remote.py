@@ -99,6 +99,8 @@ class RemoteHost:
 
     def stop(self, deadline: float) -> bool:
         """Ask the daemon to stop the run and wait up to ``deadline`` s for its exit; True if it ended."""
+        if self.stopping:  # asked already: the daemon escalates on its own
+            return self.poll() is not None
         self.stopping = True
         if self.poll() is None:
             try:

@@ -36,13 +36,14 @@ applications:
     simulator: {{world: {world}}}
     agents:
       - {{type: wanderer, robot: r0, id: wf0, machine: {machine}}}
-    end: {{duration: {duration}, timeout: 300, travel: 0.5, clearance: 0.3}}
+    end: {{duration: {duration}, timeout: 300{truth}}}
 """
 
 
-def wander(tmp_path: Path, machine: str = "robot1", duration: float = 6) -> Path:
+def wander(tmp_path: Path, machine: str = "robot1", duration: float = 6, truth: bool = True) -> Path:
     p = tmp_path / "w.yaml"
-    p.write_text(WANDER.format(world=MAPS / "testroom.world", machine=machine, duration=duration))
+    judge = ", travel: 0.5, clearance: 0.3" if truth else ""
+    p.write_text(WANDER.format(world=MAPS / "testroom.world", machine=machine, duration=duration, truth=judge))
     return p
 
 
@@ -111,6 +112,20 @@ def test_a_daemon_killed_mid_run_is_reported_and_its_agents_lost(tmp_path, procs
     )
     assert re.search(r"\[run\] elapsed [\d.]+ s; agents started 1/1; outcomes: none; agents lost 1", out)
     wait_until(lambda: pid_gone(child), 10, "the launched agent host to die with its daemon")
+
+
+def test_tolerate_lost_reports_the_lost_agents_and_runs_on(tmp_path, procs, fabric):
+    ep, daemon = fabric
+    d1 = daemon("robot1")
+    w = wander(tmp_path, duration=8, truth=False)
+    run = procs(rsal_cmd("run", str(w), "--connect", ep, "--tolerate-lost", "--progress", "1"))
+    wait_until(lambda: "[run] all 1 agent(s) alive" in run.output() or not run.alive(), 40, "the agent up")
+    d1.kill()
+    out = finished(run, 40, "rsal run to end its duration")
+    assert run.p.returncode == 0, out
+    assert "[run] machine robot1 lost mid-run: agents wf0 of host group wf0 are lost" in out
+    assert "[run] result: ok — ran 8 s with every agent started and no failed outcome" in out
+    assert re.search(r"agents started 1/1; outcomes: none; agents lost 1", out)
 
 
 def test_a_missing_daemon_is_one_line_naming_it_and_the_fix(tmp_path, procs, fabric):
@@ -255,3 +270,32 @@ def test_awareness_starts_an_agent_for_a_robot_that_appears_and_stops_it_when_it
     sim.stop()
     wait_until(lambda: "aware: robot r0's devices went; stopping its WallfollowAgent" in d.output(), 20, "the stop")
     wait_until(lambda: pid_gone(agent), 20, "the awareness agent to end")
+
+
+def test_the_wire_and_the_configuration_refuse_in_one_line(tmp_path):
+    from agents.hostd import HostConfigError, load_host_config
+    from rsal.msgs import MessageError
+
+    good = LaunchRequest(run="r1", app="a", group="g", scenario="x", overrides=("k=1",))
+    assert LaunchRequest.from_bytes(encode(good)) == good
+    for bad, text in (
+        ({**good.to_dict(), "run": "a/b"}, "field 'run': run 'a/b' must be letters"),
+        ({**good.to_dict(), "suffix": ".json"}, "field 'suffix' = '.json' must be one of .yaml, .yml, .toml"),
+        ({**good.to_dict(), "overrides": [1]}, "field 'overrides' must be a list of strings"),
+        ({**good.to_dict(), "scenario": "x" * 300_000}, "over the 262144 a daemon takes"),
+    ):
+        with pytest.raises(MessageError, match=re.escape(text)):
+            LaunchRequest.from_bytes(encode(bad))
+    cfg = tmp_path / "h.toml"
+    for body, text in (
+        ('nmae = "x"\n', "h.toml: nmae: unknown key; did you mean 'name'?"),
+        ("[awareness]\nrobots = ['r*']\n", "awareness.class: name the agent class to start"),
+        ('[agents]\nconfig = "nope.json5"\n', "agents.config: no file"),
+        ("name = [\n", "not valid TOML"),
+    ):
+        cfg.write_text(body)
+        with pytest.raises(HostConfigError, match=re.escape(text)):
+            load_host_config(str(cfg))
+    cfg.write_text('name = "r0"\n[awareness]\nclass = "WallfollowAgent"\nrobots = "r*"\nargs = {period = 0.2}\n')
+    c = load_host_config(str(cfg))
+    assert (c.name, c.aware_class, c.aware_robots, c.aware_args) == ("r0", "WallfollowAgent", ("r*",), {"period": 0.2})
