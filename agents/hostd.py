@@ -44,6 +44,7 @@ import socket
 import sys
 import tempfile
 import threading
+import time
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -151,6 +152,8 @@ class HostDaemon:
         self.targs = targs
         self.config = config or HostConfig()
         self.runs: dict[str, _Run] = {}
+        self.runners: set[str] = set()  # runs whose launcher's token is alive
+        self._lock = threading.Lock()
         self.work: queue.SimpleQueue = queue.SimpleQueue()
         self.done = threading.Event()
         self.session = None
@@ -181,8 +184,10 @@ class HostDaemon:
     def _on_runner(self, sample) -> None:
         import zenoh
 
+        run = str(sample.key_expr).split("/")[-2]
+        with self._lock:
+            (self.runners.add if sample.kind == zenoh.SampleKind.PUT else self.runners.discard)(run)
         if sample.kind == zenoh.SampleKind.DELETE:
-            run = str(sample.key_expr).split("/")[-2]
             self.work.put(("runner-gone", run))
 
     def _handle_query(self, query) -> None:
@@ -269,11 +274,22 @@ class HostDaemon:
         return ok_reply(pid=child.pid, agents=[e.id for e in entries])
 
     def _runner_alive(self, run: str) -> bool:
+        """The launcher's token, as the subscriber saw it or a lookup finds it, within RUNNER_LOOKUP s
+        (its declaration may reach this daemon after the launch request did)."""
         key = host_run_key(self.name, run, "runner")
-        try:
-            return any(rep.ok is not None for rep in self.session.liveliness().get(key, timeout=RUNNER_LOOKUP))
-        except Exception:
-            return False
+        deadline = time.monotonic() + RUNNER_LOOKUP
+        while True:
+            with self._lock:
+                if run in self.runners:
+                    return True
+            try:
+                if any(rep.ok is not None for rep in self.session.liveliness().get(key, timeout=1.0)):
+                    return True
+            except Exception as e:
+                log.debug("%s: lookup failed: %s", key, e)
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.1)
 
     def _watch(self, r: _Run) -> None:
         """Until the agent host exits: then its last lines, its exit on the fabric, its folder gone."""

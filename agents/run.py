@@ -9,7 +9,11 @@ session, PIDs kept and printed, output relayed):
 2. the device servers, ``rsal serve CONFIG --connect EP``;
 3. one agent host, ``python -m agents.hostproc SCENARIO --app NAME --host GROUP [--set ..]``, per host
    group of agents (:mod:`agents.hostproc`): it reads the same scenario file with the same
-   overrides, so the scenario has one schema, :mod:`agents.scenario`.
+   overrides, so the scenario has one schema, :mod:`agents.scenario`. A group whose entries name a
+   ``machine`` is launched on that machine's host daemon instead (``rsal host``, :mod:`agents.hostd`,
+   through :class:`agents.remote.RemoteHost`, which the runner judges as a local child); the daemons
+   named must be on the fabric before anything starts, and one that leaves mid-run loses its agents
+   (the run fails unless ``--tolerate-lost``).
 
 ``EP`` is a free loopback port unless ``--listen EP`` or ``--connect EP`` (join a running fabric)
 says otherwise. The runner's own Zenoh session subscribes ``svc/outcome/*`` and the agent tokens
@@ -241,15 +245,6 @@ class Runner:
             argv = [sys.executable, "-m", "rsal.cli", "serve", str(cfg), *flags]
             self._start(name, "server", argv, " ".join(["rsal serve", _rel(cfg), *flags]))
         machines = self.app.machines()
-        for m in dict.fromkeys(machines.values()):
-            if not daemon_alive(self.session, m):
-                groups = ", ".join(g for g, mm in machines.items() if mm == m)
-                self.result = (
-                    False,
-                    f"machine {m!r} (host group {groups}): no host daemon {host_key(m)} on the fabric; "
-                    f"start 'rsal host --name {m}' there (docs/deployment.md) or remove its 'machine'",
-                )
-                return
         for group, entries in self.app.groups().items():
             if group in machines:
                 self._launch_remote(group, machines[group], entries)
@@ -264,6 +259,20 @@ class Runner:
             argv += self._member_flags(self.agent_flags)
             ids = ", ".join(a.id for a in entries)
             self._start(group, "host", argv, f"agent host with {len(entries)} agent(s): {ids}")
+
+    def _check_machines(self) -> None:
+        """Before anything starts: every machine the application names has its host daemon on the
+        fabric (else ``self.result`` is the one line naming it and the fix)."""
+        machines = self.app.machines()
+        for m in dict.fromkeys(machines.values()):
+            if not daemon_alive(self.session, m):
+                groups = ", ".join(g for g, mm in machines.items() if mm == m)
+                self.result = (
+                    False,
+                    f"machine {m!r} (host group {groups}): no host daemon {host_key(m)} on the fabric; "
+                    f"start 'rsal host --name {m}' there (docs/deployment.md) or remove its 'machine'",
+                )
+                return
 
     def _launch_remote(self, group: str, machine: str, entries) -> None:
         """Launch host group ``group`` on host daemon ``machine`` (:mod:`agents.remote`): it gets the
@@ -517,7 +526,10 @@ class Runner:
             except ValueError as e:
                 _err(str(e))
                 return 1
-            if self.app.simulator is not None:
+            self._check_machines()
+            if self.result is not None:
+                pass
+            elif self.app.simulator is not None:
                 self.phase = "sim"
                 self._start_sim()
             else:

@@ -79,7 +79,7 @@ def test_run_places_a_group_on_the_named_daemon_and_the_robot_moves(tmp_path, pr
     ep, daemon = fabric
     d1, d2 = daemon("robot1"), daemon("robot2")
     run = procs(rsal_cmd("run", str(wander(tmp_path)), "--connect", ep, "--speedup", "4", "--progress", "2"))
-    out = finished(run, 60, "rsal run to end")
+    out = finished(run, 120, "rsal run to end")
     assert run.p.returncode == 0, out
     m = re.search(r"\[run\] launched wf0 on machine robot1 \(run (\w+), pid (\d+) on robot1\): 1 agent\(s\): wf0", out)
     assert m, out
@@ -99,11 +99,11 @@ def test_a_daemon_killed_mid_run_is_reported_and_its_agents_lost(tmp_path, procs
     ep, daemon = fabric
     d1 = daemon("robot1")
     run = procs(rsal_cmd("run", str(wander(tmp_path, duration=120)), "--connect", ep, "--timeout", "200"))
-    wait_until(lambda: "[run] all 1 agent(s) alive" in run.output() or not run.alive(), 40, "the agent up")
+    wait_until(lambda: "[run] all 1 agent(s) alive" in run.output() or not run.alive(), 90, "the agent up")
     assert run.alive(), run.output()
     child = int(re.search(r"pid (\d+) on robot1", run.output()).group(1))
     d1.kill()  # SIGKILL by PID: no goodbye
-    out = finished(run, 30, "rsal run to notice the lost daemon")
+    out = finished(run, 60, "rsal run to notice the lost daemon")
     assert run.p.returncode == 1, out
     assert "[run] machine robot1 lost mid-run: agents wf0 of host group wf0 are lost" in out
     assert (
@@ -119,9 +119,9 @@ def test_tolerate_lost_reports_the_lost_agents_and_runs_on(tmp_path, procs, fabr
     d1 = daemon("robot1")
     w = wander(tmp_path, duration=8, truth=False)
     run = procs(rsal_cmd("run", str(w), "--connect", ep, "--tolerate-lost", "--progress", "1"))
-    wait_until(lambda: "[run] all 1 agent(s) alive" in run.output() or not run.alive(), 40, "the agent up")
+    wait_until(lambda: "[run] all 1 agent(s) alive" in run.output() or not run.alive(), 90, "the agent up")
     d1.kill()
-    out = finished(run, 40, "rsal run to end its duration")
+    out = finished(run, 90, "rsal run to end its duration")
     assert run.p.returncode == 0, out
     assert "[run] machine robot1 lost mid-run: agents wf0 of host group wf0 are lost" in out
     assert "[run] result: ok — ran 8 s with every agent started and no failed outcome" in out
@@ -131,7 +131,7 @@ def test_tolerate_lost_reports_the_lost_agents_and_runs_on(tmp_path, procs, fabr
 def test_a_missing_daemon_is_one_line_naming_it_and_the_fix(tmp_path, procs, fabric):
     ep, _ = fabric
     run = procs(rsal_cmd("run", str(wander(tmp_path, machine="robot9")), "--connect", ep))
-    out = finished(run, 40, "rsal run to give up")
+    out = finished(run, 60, "rsal run to give up")
     assert run.p.returncode == 1, out
     line = (
         "rsal run: machine 'robot9' (host group wf0): no host daemon hosts/robot9 on the fabric; "
