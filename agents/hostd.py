@@ -14,6 +14,7 @@ The daemon declares the liveliness token ``hosts/<name>`` once its queryable
   (malformed request or scenario, a run id in use), ``not_found`` (no such application, host group
   or agent class), ``unavailable`` (the launcher's token ``.../runner`` is not alive).
 - ``stop {run}``: SIGTERM to that agent host, SIGKILL after ``STOP_DEADLINE`` s.
+  At most ``MAX_RUNS`` runs at once: a launch beyond is refused ``busy``.
 - ``status``: the daemon's runs (run, app, group, pid, state).
 
 A run is also stopped when its launcher's token ``hosts/<name>/run/<run>/runner`` disappears (the
@@ -66,6 +67,8 @@ PROG = "rsal host"
 STOP_DEADLINE = 15.0
 #: seconds to look for a launcher's token before a launch is refused
 RUNNER_LOOKUP = 3.0
+#: runs one daemon keeps at once; a launch beyond is refused ``busy`` (no request grows it unbounded)
+MAX_RUNS = 32
 
 _TOP = ("name", "agents", "awareness")
 _AGENTS = ("config",)
@@ -141,6 +144,7 @@ class _Run:
     seq: int = 0
     lock: threading.Lock = field(default_factory=threading.Lock)
     stopping: str = ""
+    watcher: threading.Thread | None = None
 
 
 class HostDaemon:
@@ -155,7 +159,6 @@ class HostDaemon:
         self.runners: set[str] = set()  # runs whose launcher's token is alive
         self._lock = threading.Lock()
         self.work: queue.SimpleQueue = queue.SimpleQueue()
-        self.done = threading.Event()
         self.session = None
         self.awareness = None
 
@@ -219,6 +222,8 @@ class HostDaemon:
         from .registry import AgentClassError, resolve
         from .scenario import ScenarioError, load_scenario, parse_set
 
+        if len(self.runs) >= MAX_RUNS:
+            raise _Refusal(ErrorCode.BUSY, f"{MAX_RUNS} runs are running here already; stop one or use another host")
         if req.run in self.runs:
             raise _Refusal(ErrorCode.BAD_REQUEST, f"run {req.run!r} is already launched here; use a new run id")
         if not self._runner_alive(req.run):
@@ -268,7 +273,8 @@ class HostDaemon:
         r = _Run(req, child, folder)
         holder.append(r)
         self.runs[req.run] = r
-        threading.Thread(target=self._watch, args=(r,), name=f"run-{req.run}", daemon=True).start()
+        r.watcher = threading.Thread(target=self._watch, args=(r,), name=f"run-{req.run}", daemon=True)
+        r.watcher.start()
         ids = ", ".join(e.id for e in entries)
         self.say(f"launched run {req.run}: {sc.name}/{req.app} group {req.group} (pid {child.pid}): {ids}")
         return ok_reply(pid=child.pid, agents=[e.id for e in entries])
@@ -364,8 +370,9 @@ class HostDaemon:
             if self.awareness is not None:
                 running += self.awareness.children()
             stop_all(running, [(signal.SIGTERM, STOP_DEADLINE)])
-            for c in running:
-                c.drained()
+            for r in list(self.runs.values()):  # their exits on the fabric before the session closes
+                if r.watcher is not None:
+                    r.watcher.join(5.0)
             for h in handles:
                 h.undeclare()
             token.undeclare()
