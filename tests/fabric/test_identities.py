@@ -380,3 +380,47 @@ def test_only_the_operator_launches_on_a_host_daemon(fleet):
     finally:
         for x in (real, rogue, *tokens):
             x.undeclare()
+
+
+def test_a_secured_run_launches_on_the_robot_hosts_daemon_and_an_agent_host_cannot(fleet, tmp_path):
+    """``rsal host`` as robot host r1 (its agent hosts as agent host A), ``rsal run`` as the operator:
+    A's agent hunter-1 is launched on r1's daemon and its outcome ends the run; the same run as
+    agent host A does not even see the daemon (one line, exit 1)."""
+    f, _, _ = fleet
+    host_cfg = tmp_path / "host.toml"
+    host_cfg.write_text(f'[agents]\nconfig = "{f.member_config("hostA")}"\n')
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(
+        "scenario: secured\n"
+        "agent_types: {rep: tests.agents.scenario_agents:Reporter}\n"
+        "applications:\n"
+        "  a:\n"
+        "    agents: [{type: rep, id: hunter-1, machine: r1, args: {subjects: [r0], every: 0.3}}]\n"
+        "    end: {event: caught, count: 1, timeout: 60}\n"
+    )
+    daemon = Proc(
+        rsal_cmd("host", "--name", "r1", "--config", str(f.member_config("r1")), "--host-config", str(host_cfg))
+    )
+    try:
+        wait_until(lambda: "up: token hosts/r1" in daemon.output() or not daemon.alive(), 30, "r1's daemon")
+        assert daemon.alive(), daemon.output()
+        run = Proc(rsal_cmd("run", str(scenario), "--config", str(f.member_config("op"))))
+        try:
+            wait_until(lambda: not run.alive(), 90, "the operator's run to end")
+            out = run.output()
+            assert run.p.returncode == 0, out
+            assert "[run] launched hunter-1 on machine r1" in out and "[run] result: ok — " in out, out
+        finally:
+            run.close()
+        assert "launched run" in daemon.output()
+        run = Proc(rsal_cmd("run", str(scenario), "--config", str(f.member_config("hostA"))))
+        try:
+            wait_until(lambda: not run.alive(), 60, "agent host A's run to give up")
+            out = run.output()
+            assert run.p.returncode == 1, out
+            assert "rsal run: machine 'r1' (host group hunter-1): no host daemon hosts/r1 on the fabric" in out, out
+        finally:
+            run.close()
+        assert daemon.output().count("launched run") == 1
+    finally:
+        daemon.close()
