@@ -613,6 +613,14 @@ def run_scenario(args: argparse.Namespace) -> int:
     except ScenarioError as e:
         _err(str(e))
         return 2
+    machines = app.machines()
+    if machines and not (args.connect or args.listen or getattr(args, "config", None)):
+        m = next(iter(machines.values()))
+        _err(
+            f"{args.scenario}: application {app.name!r} places agents on machine {m!r}, whose host daemon joins a "
+            "running fabric: give --connect EP (e.g. a router's, rsal router --listen EP) or --config FILE"
+        )
+        return 2
     agents_config = getattr(args, "agents_config", None)
     if agents_config and not os.path.isfile(agents_config):
         _err(

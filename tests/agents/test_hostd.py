@@ -139,6 +139,23 @@ def test_a_missing_daemon_is_one_line_naming_it_and_the_fix(tmp_path, procs, fab
     )
     assert line in out.splitlines(), out
     assert "Traceback" not in out
+    assert "started sim" not in out  # checked before anything starts
+    # without a fabric to join (a fresh port of its own), no daemon can be there: said at once, exit 2
+    run = procs(rsal_cmd("run", str(wander(tmp_path))))
+    out = finished(run, 30, "rsal run to refuse")
+    assert run.p.returncode == 2, out
+    assert out.strip().endswith(
+        "places agents on machine 'robot1', whose host daemon joins a running fabric: give --connect EP "
+        "(e.g. a router's, rsal router --listen EP) or --config FILE"
+    ), out
+    # the daemon's own bad flags and files: one line, exit 2
+    for argv, text in (
+        (["--name", "a b"], "rsal host: --name 'a b' must be letters, digits"),
+        (["--name", "x", "--host-config", str(tmp_path / "none.toml")], "none.toml: cannot read it"),
+    ):
+        d = procs(rsal_cmd("host", *argv))
+        out = finished(d, 30, "rsal host to refuse")
+        assert d.p.returncode == 2 and text in out and len(out.strip().splitlines()) == 1, out
 
 
 def _ask(session, name: str, op: str, payload: bytes) -> dict:
