@@ -324,11 +324,13 @@ class Runner:
                     f"{c.name} on machine {c.machine} did not report its end within {STOP_DEADLINES['host']:g} s"
                 )
             c.close()
-        while True:  # their last lines
+        while True:  # their last lines (the run's result and tally are settled: nothing else counts now)
             try:
-                self._handle(self.events.get_nowait())
+                item = self.events.get_nowait()
             except queue.Empty:
                 break
+            if item[0] == "line":
+                self.out.line(item[2])
         for kind in ("host", "server", "sim"):
             group = [c for c in self.children if c.kind == kind and c.poll() is None and not isinstance(c, RemoteHost)]
             stop_all(group, [(signal.SIGTERM, STOP_DEADLINES[kind])], killed)
