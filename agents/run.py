@@ -34,8 +34,9 @@ argument exits 2 with one line; SIGINT/SIGTERM stop everything and exit 130. Sto
 to the agent hosts, then the servers, then the simulator, each with a deadline, and SIGKILL by PID
 to whatever is left. The format and the lines printed are described in ``docs/scenarios.md``.
 
-(Somewhat over 500 lines: the runner's phases, end conditions and summary are one state machine
-over one event queue; the processes themselves are :mod:`rsal.procs`'s.)
+(About 700 lines, over the 500 of the house rule: the runner's phases, end conditions and summary
+are one state machine over one event queue; the processes themselves are :mod:`rsal.procs`'s and
+the remote ones :mod:`agents.remote`'s.)
 """
 
 from __future__ import annotations
