@@ -16,6 +16,7 @@ import collections
 import logging
 import queue
 import threading
+import time
 
 from rsal.keys import host_key, host_rpc_key, host_run_key
 from rsal.msgs import MessageError, RpcError, decode, encode, parse_reply
@@ -35,9 +36,16 @@ class RemoteError(ValueError):
     """A launch that could not be made; one line naming the machine and the fix."""
 
 
-def daemon_alive(session, machine: str, timeout: float = 3.0) -> bool:
-    """Whether the host daemon ``machine``'s token is on the fabric."""
-    return any(r.ok is not None for r in session.liveliness().get(host_key(machine), timeout=timeout))
+def daemon_alive(session, machine: str, timeout: float = 5.0) -> bool:
+    """Whether the host daemon ``machine``'s token is on the fabric, looked up until ``timeout`` s: a
+    session just opened may not know the fabric's tokens yet (a lookup then ends at once, empty)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        if any(r.ok is not None for r in session.liveliness().get(host_key(machine), timeout=1.0)):
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.2)
 
 
 class RemoteHost:
