@@ -244,6 +244,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--tolerate-failures", action="store_true", help="run the agents that could start when others cannot"
     )
+    ap.add_argument(
+        "--remote",
+        action="store_true",
+        help="the scenario is a host daemon's copy: the files it names are on the runner's machine, not checked",
+    )
     ap.add_argument("-v", "--verbose", action="count", default=0, help="debug log output")
     add_transport_args(ap)
     args = ap.parse_args(argv)
@@ -257,7 +262,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{prog}: {line}", file=sys.stderr, flush=True)
 
     try:
-        sc = load_scenario(args.scenario, parse_set(args.set or []))
+        sc = load_scenario(args.scenario, parse_set(args.set or []), check_files=not args.remote)
         entries = host_agents(sc, args.app, args.host)
     except (ScenarioError, HostError) as e:
         fail(str(e))

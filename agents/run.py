@@ -13,7 +13,11 @@ session, PIDs kept and printed, output relayed):
 3. the device servers, ``rsal serve CONFIG --connect EP``;
 4. one agent host, ``python -m agents.hostproc SCENARIO --app NAME --host GROUP [--set ..]``, per host
    group of agents (:mod:`agents.hostproc`): it reads the same scenario file with the same
-   overrides, so the scenario has one schema, :mod:`agents.scenario`.
+   overrides, so the scenario has one schema, :mod:`agents.scenario`. A group whose entries name a
+   ``machine`` is launched on that machine's host daemon instead (``rsal host``, :mod:`agents.hostd`,
+   through :class:`agents.remote.RemoteHost`, which the runner judges as a local child); the daemons
+   named must be on the fabric before anything starts, and one that leaves mid-run loses its agents
+   (the run fails unless ``--tolerate-lost``).
 
 ``EP`` is a free loopback port unless ``--listen EP`` or ``--connect EP`` (join a running fabric)
 says otherwise. The runner's own Zenoh session subscribes ``svc/outcome/*`` and the agent tokens
@@ -35,8 +39,9 @@ Stopping sends SIGTERM to the agent hosts, then the servers, then the rehearsal,
 each with a deadline, and SIGKILL by PID to whatever is left. The format and the lines printed are
 described in ``docs/scenarios.md``.
 
-(Somewhat over 500 lines: the runner's phases, end conditions and summary are one state machine
-over one event queue; the processes themselves are :mod:`rsal.procs`'s.)
+(About 700 lines, over the 500 of the house rule: the runner's phases, end conditions and summary
+are one state machine over one event queue; the processes themselves are :mod:`rsal.procs`'s and
+the remote ones :mod:`agents.remote`'s.)
 """
 
 from __future__ import annotations
@@ -56,9 +61,12 @@ from pathlib import Path
 from rsal.cliutil import positive
 from rsal.clock import ENV as clock_env
 from rsal.clock import SimClock
+from rsal.keys import host_key
 from rsal.procs import Child, python_env, stop_all
 from rsal.transport import free_port
 
+from .hostwire import SUFFIXES, LaunchRequest
+from .remote import LOST, RemoteError, RemoteHost, daemon_alive
 from .scenario import Application, Scenario, ScenarioError, check_classes, load_scenario, parse_set
 from .verdict import SAMPLE_PERIOD, GroundTruth
 
@@ -118,6 +126,7 @@ class Runner:
         self.strangers: set[str] = set()  # other senders of outcomes, reported once each
         self.alive: set[str] = set()
         self.ever_alive: set[str] = set()
+        self.lost: set[str] = set()  # agents of a machine that left the fabric mid-run
         self.devices: set[str] = set()
         self.signalled: list[str] = []
         self.result: tuple[bool, str] | None = None
@@ -192,6 +201,12 @@ class Runner:
             lv.declare_subscriber("agents/*", on_agent, history=True),
             lv.declare_subscriber("rsal/*/*/*", on_device, history=True),
         ]
+        if self.app.machines():  # host daemons whose token goes mid-run lose their agents
+
+            def on_machine(sample) -> None:
+                q.put(("machine", str(sample.key_expr).split("/", 1)[1], sample.kind == zenoh.SampleKind.PUT))
+
+            self._handles.append(lv.declare_subscriber(host_key("*"), on_machine))
 
     def _close(self) -> None:
         if self.truth is not None:
@@ -257,7 +272,13 @@ class Runner:
             flags = self._member_flags()
             argv = [sys.executable, "-m", "rsal.cli", "serve", str(cfg), *flags]
             self._start(name, "server", argv, " ".join(["rsal serve", _rel(cfg), *flags]))
+        machines = self.app.machines()
         for group, entries in self.app.groups().items():
+            if group in machines:
+                self._launch_remote(group, machines[group], entries)
+                if self.result is not None:
+                    return
+                continue
             # the host reads the scenario this run parsed, with the same overrides (no second schema)
             argv = [sys.executable, "-m", "agents.hostproc", str(self.sc.source.resolve()), "--app", self.app.name]
             argv += ["--host", group, "--report-every", f"{self.args.host_report:g}"]
@@ -266,6 +287,47 @@ class Runner:
             argv += self._member_flags(self.agent_flags)
             ids = ", ".join(a.id for a in entries)
             self._start(group, "host", argv, f"agent host with {len(entries)} agent(s): {ids}")
+
+    def _check_machines(self) -> None:
+        """Before anything starts: every machine the application names has its host daemon on the
+        fabric (else ``self.result`` is the one line naming it and the fix)."""
+        machines = self.app.machines()
+        for m in dict.fromkeys(machines.values()):
+            if not daemon_alive(self.session, m):
+                groups = ", ".join(g for g, mm in machines.items() if mm == m)
+                self.result = (
+                    False,
+                    f"machine {m!r} (host group {groups}): no host daemon {host_key(m)} on the fabric; "
+                    f"start 'rsal host --name {m}' there (docs/deployment.md) or remove its 'machine'",
+                )
+                return
+
+    def _launch_remote(self, group: str, machine: str, entries) -> None:
+        """Launch host group ``group`` on host daemon ``machine`` (:mod:`agents.remote`): it gets the
+        scenario's text, the application, the group and the overrides."""
+        import uuid
+
+        req = LaunchRequest(
+            run=uuid.uuid4().hex[:12],
+            app=self.app.name,
+            group=group,
+            scenario=self.sc.source.read_text(),
+            suffix=self.sc.source.suffix if self.sc.source.suffix in SUFFIXES else ".yaml",
+            overrides=tuple(self.args.set or []),
+            report_every=self.args.host_report,
+            sim_clock=SIM_NODE if self.app.simulator is not None else "",
+        )
+        rh = RemoteHost(self.session, machine, req, self.events)
+        try:
+            rh.launch()
+        except RemoteError as e:
+            self.result = (False, str(e))
+            return
+        self.children.append(rh)  # type: ignore[arg-type]
+        ids = ", ".join(a.id for a in entries)
+        self.out.say(
+            f"launched {group} on machine {machine} (run {req.run}, pid {rh.pid}): {len(entries)} agent(s): {ids}"
+        )
 
     def _member_flags(self, zenoh_flags: list[str] | None = None) -> list[str]:
         """Transport flags of the servers and agent hosts: they join the fabric's endpoint."""
@@ -278,8 +340,27 @@ class Runner:
         def killed(c: Child, waited: float) -> None:
             self.out.say(f"{c.name} (pid {c.pid}) did not stop within {waited:g} s; killed")
 
+        remote = [c for c in self.children if isinstance(c, RemoteHost)]
+        stoppers = [threading.Thread(target=c.stop, args=(STOP_DEADLINES["host"],)) for c in remote if c.alive()]
+        for t in stoppers:
+            t.start()
+        for t in stoppers:
+            t.join()
+        for c in remote:
+            if c.alive():
+                self.out.say(
+                    f"{c.name} on machine {c.machine} did not report its end within {STOP_DEADLINES['host']:g} s"
+                )
+            c.close()
+        while True:  # their last lines (the run's result and tally are settled: nothing else counts now)
+            try:
+                item = self.events.get_nowait()
+            except queue.Empty:
+                break
+            if item[0] == "line":
+                self.out.line(item[2])
         for kind in ("host", "server", "rehearse", "sim"):
-            group = [c for c in self.children if c.kind == kind and c.poll() is None]
+            group = [c for c in self.children if c.kind == kind and c.poll() is None and not isinstance(c, RemoteHost)]
             stop_all(group, [(signal.SIGTERM, STOP_DEADLINES[kind])], killed)
         for c in self.children:
             c.drained()
@@ -339,6 +420,12 @@ class Runner:
                     self.out.say(f"agent {who} left")
         elif kind == "device":
             (self.devices.add if what else self.devices.discard)(who)
+        elif kind == "line":
+            self.out.line(what)
+        elif kind == "machine" and not what:
+            for c in self.children:
+                if isinstance(c, RemoteHost) and c.machine == who:
+                    c.lost()
 
     def _next_phase(self) -> None:
         """After the simulator (if any): the rehearsal, if any, else the servers and agents."""
@@ -379,6 +466,14 @@ class Runner:
             if c.kind == "host" and rc == 0:
                 self.out.say(f"agent host {c.name} exited: its agents ended")
                 continue
+            if rc == LOST and isinstance(c, RemoteHost):
+                ids = [a.id for a in self.app.groups()[c.name]]
+                self.lost.update(ids)
+                self.out.say(
+                    f"machine {c.machine} lost mid-run: agents {', '.join(ids)} of host group {c.name} are lost"
+                )
+                if getattr(self.args, "tolerate_lost", False):
+                    continue
             what = CHILD_KINDS[c.kind]
             name = "" if c.kind in ("sim", "rehearse") else f" {c.name!r}"
             self.result = (False, f"{what}{name} (pid {c.pid}) {c.exit_reason()}")
@@ -478,7 +573,10 @@ class Runner:
             except ValueError as e:
                 _err(str(e))
                 return 1
-            if self.app.simulator is not None:
+            self._check_machines()
+            if self.result is not None:
+                pass
+            elif self.app.simulator is not None:
                 self.phase = "sim"
                 self._start_sim()
             else:
@@ -513,6 +611,7 @@ class Runner:
             f"elapsed {elapsed:.1f} s; agents started {len(self.ever_alive & set(self.expected))}/"
             f"{len(self.expected)}; outcomes: {counts or 'none'}"
             + (f"; failed outcomes {len(self.tally.failed)}" if self.tally.failed else "")
+            + (f"; agents lost {len(self.lost)}" if self.lost else "")
             + (f"; times on the simulation's clock ({wall:.1f} s of wall time)" if self._sim_base is not None else "")
         )
         return code
@@ -563,6 +662,14 @@ def run_scenario(args: argparse.Namespace) -> int:
     if app.rehearse is not None and getattr(args, "speedup", None) not in (None, 1.0):
         _err(f"--speedup {args.speedup:g}: application {name!r} rehearses a real robot, which runs in real time")
         return 2
+    machines = app.machines()
+    if machines and not (args.connect or args.listen or getattr(args, "config", None)):
+        m = next(iter(machines.values()))
+        _err(
+            f"{args.scenario}: application {app.name!r} places agents on machine {m!r}, whose host daemon joins a "
+            "running fabric: give --connect EP (e.g. a router's, rsal router --listen EP) or --config FILE"
+        )
+        return 2
     agents_config = getattr(args, "agents_config", None)
     if agents_config and not os.path.isfile(agents_config):
         _err(
@@ -603,6 +710,11 @@ def register(sub) -> None:
     where.add_argument("--connect", metavar="ENDPOINT", help="join a running fabric at ENDPOINT")
     where.add_argument(
         "--listen", metavar="ENDPOINT", help="the fabric's endpoint (default: a free port tcp/127.0.0.1:PORT)"
+    )
+    p.add_argument(
+        "--tolerate-lost",
+        action="store_true",
+        help="a machine (host daemon) that leaves mid-run loses its agents but does not fail the run",
     )
     p.add_argument("--config", metavar="FILE", help="a Zenoh JSON5 configuration for every process of the run")
     p.add_argument(

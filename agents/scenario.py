@@ -67,7 +67,7 @@ _SIM = ("world", "nav", "nav_robots", "speedup", "seed")
 _REHEARSE = ("world", "robot", "nav", "pioneer", "laser", "node", "seed")
 _PIONEERS = ("P2DX", "P3AT")  # mrs_bridge.emulators.p2os.DIST_CONV
 _LASERS = ("URG-04LX", "UTM-30LX")  # mrs_bridge.emulators.urg.SENSORS
-_AGENT = ("type", "robot", "id", "args", "host", "count")
+_AGENT = ("type", "robot", "id", "args", "host", "machine", "count")
 _END = ("event", "count", "timeout", "duration", "travel", "clearance")
 _NAV = ("vfh", "nd", "snd")
 
@@ -119,6 +119,7 @@ class AgentEntry:
     robot: str = ""
     args: dict[str, Any] = field(default_factory=dict)
     host: str | None = None
+    machine: str | None = None  # the host daemon (rsal host --name MACHINE) its group is launched on
 
     @property
     def group(self) -> str:
@@ -159,6 +160,11 @@ class Application:
             out.setdefault(a.group, []).append(a)
         return out
 
+    def machines(self) -> dict[str, str]:
+        """Host group -> the machine (host daemon) it is launched on, for groups that name one; the
+        others run on the runner's own machine."""
+        return {a.group: a.machine for a in self.agents if a.machine}
+
 
 @dataclass(frozen=True)
 class Scenario:
@@ -172,8 +178,9 @@ class Scenario:
 
 # ---------------------------------------------------------------------------- helpers
 class _Ctx:
-    def __init__(self, source: Path):
+    def __init__(self, source: Path, check_files: bool = True):
         self.source = source
+        self.check_files = check_files
 
     def fail(self, where: str, text: str) -> ScenarioError:
         return ScenarioError(f"{self.source}: {where}: {text}" if where else f"{self.source}: {text}")
@@ -213,6 +220,8 @@ class _Ctx:
     def path(self, value: Any, where: str) -> Path:
         p = Path(self.text(value, where))
         full = p if p.is_absolute() else (self.source.parent / p)
+        if not self.check_files:  # the runner's files, on another machine (a host daemon's copy)
+            return full
         if not full.is_file():
             raise self.fail(where, f"file {str(p)!r} does not exist (paths are relative to the scenario file)")
         return full.resolve()
@@ -269,11 +278,13 @@ def _read(path: Path) -> Any:
 
 
 # ---------------------------------------------------------------------------- loader
-def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> Scenario:
+def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None, *, check_files: bool = True) -> Scenario:
     """Parse and validate a scenario file; ``overrides`` replace global arguments (``--set``).
+    ``check_files=False`` leaves the files it names (world, server configurations) unchecked: a
+    host daemon's copy of the runner's scenario, whose files are on the runner's machine.
     Raises :class:`ScenarioError` with one line."""
     src = Path(path)
-    c = _Ctx(src)
+    c = _Ctx(src, check_files)
     doc = _read(src)
     if doc is None:
         raise c.fail("", "the file is empty; see docs/scenarios.md for the format")
@@ -332,6 +343,15 @@ def _application(c: _Ctx, name: str, raw: Any, agent_types: dict[str, str]) -> A
                 )
             seen[entry.id] = f"{where}.agents[{i}]"
             agents.append(entry)
+    machine_of: dict[str, str | None] = {}
+    for a in agents:
+        other = machine_of.setdefault(a.group, a.machine)
+        if other != a.machine:
+            raise c.fail(
+                f"{where}.agents",
+                f"host group {a.group!r} is placed on machine {other or 'here'!r} and on {a.machine or 'here'!r}; "
+                "one agent host runs on one machine: give its entries the same 'machine'",
+            )
     end = _end(c, f"{where}.end", m["end"])
     truth = [k for k in ("travel", "clearance") if getattr(end, k) is not None]
     if truth and sim is None:
@@ -397,6 +417,12 @@ def _agents(c: _Ctx, where: str, raw: Any, agent_types: dict[str, str], per_type
     robot = "" if m.get("robot") is None else c.text(m["robot"], f"{where}.robot")
     agent_id = None if m.get("id") is None else c.text(m["id"], f"{where}.id")
     host = None if m.get("host") is None else c.text(m["host"], f"{where}.host")
+    machine = None if m.get("machine") is None else c.text(m["machine"], f"{where}.machine")
+    if machine is not None:
+        try:
+            check_name("machine", machine)
+        except ValueError as e:
+            raise c.fail(f"{where}.machine", f"{e}; it is the host daemon's --name") from None
     args = m.get("args") or {}
     if not isinstance(args, dict) or not all(isinstance(k, str) for k in args):
         raise c.fail(f"{where}.args", f"must be a map of argument names to values, not {_kind(args)}")
@@ -421,7 +447,7 @@ def _agents(c: _Ctx, where: str, raw: Any, agent_types: dict[str, str], per_type
             check_name("agent id", aid)
         except ValueError as e:
             raise c.fail(f"{where}.id", f"{e}; choose another id") from None
-        out.append(AgentEntry(t, agent_types[t], aid, r, dict(args), host))
+        out.append(AgentEntry(t, agent_types[t], aid, r, dict(args), host, machine))
     return out
 
 

@@ -10,6 +10,10 @@ A device address is Player's ``host:port:interface:index`` with the host:port pa
     liveliness token rsal/<node>/<iface>/<idx>   present while the device works
     agents/<agent_id>                     liveliness token of a running agent
     svc/<service>/<sender_id>             agent services
+    liveliness token hosts/<name>         a host daemon (``rsal host``) that launches agent hosts
+    hosts/<name>/rpc/<op>                 its launch/stop/status requests
+    hosts/<name>/run/<run>/<what>         a launched agent host's output lines and exit (``out``,
+                                          ``exit``) and the runner's token (``runner``)
 
 In configuration files a device is written the Player way, ``[key::][node:]iface:idx`` (for
 example ``odometry::r0:position2d:0`` or ``laser:0``), see :func:`parse_device`. The full contract
@@ -39,6 +43,10 @@ __all__ = [
     "check_name",
     "agent_key",
     "service_key",
+    "HOSTS_PREFIX",
+    "host_key",
+    "host_rpc_key",
+    "host_run_key",
 ]
 
 PREFIX = "rsal"
@@ -221,3 +229,30 @@ def service_key(service: str, sender: str = "*") -> str:
     """``svc/<service>/<sender>`` (``*`` for every sender)."""
     s = check_name("service", service)
     return f"{SVC_PREFIX}/{s}/{sender if sender == '*' else check_name('sender id', sender)}"
+
+
+#: host daemons (``rsal host``, :mod:`agents.hostd`): token ``hosts/<name>``, requests and runs under it
+HOSTS_PREFIX = "hosts"
+HOST_OPS = ("launch", "stop", "status")
+RUN_PARTS = ("out", "exit", "runner")
+
+
+def host_key(name: str) -> str:
+    """The liveliness key of a host daemon: ``hosts/<name>`` (``*``: every daemon)."""
+    return f"{HOSTS_PREFIX}/{name if name == '*' else check_name('host name', name)}"
+
+
+def host_rpc_key(name: str, op: str = "*") -> str:
+    """``hosts/<name>/rpc/<op>``: a host daemon's launch, stop and status requests."""
+    if op != "*" and op not in HOST_OPS:
+        raise ValueError(f"host operation {op!r}: one of {', '.join(HOST_OPS)}")
+    return f"{host_key(name)}/rpc/{op}"
+
+
+def host_run_key(name: str, run: str = "*", part: str = "*") -> str:
+    """``hosts/<name>/run/<run>/<part>``: a launched agent host's ``out`` lines and ``exit``, and the
+    ``runner`` token of whoever launched it (the daemon stops the run when that token goes)."""
+    if part not in ("*", "**") and part not in RUN_PARTS:
+        raise ValueError(f"run key part {part!r}: one of {', '.join(RUN_PARTS)}")
+    r = run if run == "*" else check_name("run id", run)
+    return f"{host_key(name)}/run/{r}/{part}"

@@ -105,8 +105,9 @@ class Child:
     ``argv`` runs in its own session (process group) with stdin closed; it dies with this process.
     Its output is read line by line on reader threads: the last ``keep`` lines are kept in
     :attr:`lines`; each line goes to ``forward`` (if given) with ``[name] `` in front unless the
-    line already starts with ``[`` (children that name themselves), and to ``on_line`` (called on
-    the reader thread; an exception there is logged, never raised). With ``stderr_apart`` the
+    line already starts with ``[`` (children that name themselves), to ``on_line`` and to
+    ``on_output(line, is_stderr)`` (called on the reader thread; an exception there is logged,
+    never raised). With ``stderr_apart`` the
     standard error is read separately and its last line is what :meth:`exit_reason` quotes;
     otherwise both streams are merged. ``kind`` and ``shown`` (the command as a user would type
     it) are labels for whoever lists children.
@@ -123,6 +124,7 @@ class Child:
         cwd: Any = None,
         forward: Callable[[str], None] | None = None,
         on_line: Callable[[str], None] | None = None,
+        on_output: Callable[[str, bool], None] | None = None,
         stderr_apart: bool = False,
         keep: int = 40,
     ):
@@ -132,6 +134,7 @@ class Child:
         self.shown = shown or " ".join(self.argv)
         self.forward = forward
         self.on_line = on_line
+        self.on_output = on_output
         self.lines: collections.deque[str] = collections.deque(maxlen=keep)
         self.errors: collections.deque[str] = collections.deque(maxlen=5)
         self.stderr_apart = stderr_apart
@@ -181,11 +184,12 @@ class Child:
                 self.errors.append(line)
             if self.forward is not None:
                 self.forward(line if line.startswith("[") else f"[{self.name}] {line}")
-            if self.on_line is not None:
-                try:
-                    self.on_line(line)
-                except Exception:
-                    log.exception("%s: line handler failed", self.name)
+            for handler, hargs in ((self.on_line, (line,)), (self.on_output, (line, is_err))):
+                if handler is not None:
+                    try:
+                        handler(*hargs)
+                    except Exception:
+                        log.exception("%s: line handler failed", self.name)
         pipe.close()
 
     @property

@@ -11,14 +11,18 @@ in the router's dictionary), and the router's access-control rules generated fro
 kind              may (everything else is refused: ``default_permission: "deny"``)
 ================  =======================================================================
 ``robot``         everything under its own nodes ``rsal/<node>/**`` (tokens, data, events,
-                  commands, rpcs served and called); receive any base's emergency stop
+                  commands, rpcs served and called); receive any base's emergency stop; run
+                  the host daemon ``hosts/<name>`` (``rsal host --name <name>``: its token,
+                  requests, its runs' ``out``/``exit``, its launchers' tokens)
 ``agents``        put ``svc/<service>/<agent>`` and declare ``agents/<agent>`` for its own
                   agents and services; read those services and agents' tokens; answer
                   ``hello`` for its own agents and ask everyone's; drive the robots it is
                   given (``--robots``: commands, rpcs, data) and, with robots, read their
                   true poses from the simulation (its token, ``describe``, ``get_pose``)
-``operator``      read every device, service and agent; command and call every device (start
-                  runs, drive robots, emergency stop and release); no tokens, no services
+``operator``      read every device, service, agent and host daemon; command and call every
+                  device (start runs, drive robots, emergency stop and release); launch, stop
+                  and list agent hosts on host daemons (``hosts/*/rpc/*``) and hold its runs'
+                  launcher tokens; no other tokens, no services
 ``viewer``        read devices' data, events, tokens and ``describe``; press the emergency stop
 ================  =======================================================================
 
@@ -63,6 +67,7 @@ CLOCK = "rsal/*/simulation/*/data"
 SIMULATION = "rsal/*/simulation/*"  # the simulation device's token
 SIM_READS = ("describe", "get_pose")  # what an agent host may ask the simulation (reads only)
 HELLO = "hello"  # the agents' discovery service (agents.services), answered per agent
+HOSTS = "hosts"  # host daemons (rsal host): hosts/<name>, hosts/<name>/rpc/<op>, hosts/<name>/run/**
 
 
 class SecureError(RsalError, ValueError):
@@ -134,6 +139,7 @@ def _rules_of(ident: Identity) -> list[dict]:
         own = [k for node in ident.nodes for k in (f"rsal/{node}/**", _owners(f"rsal/{node}/*/*"))]
         rules.append(_rule(f"{n}-own-in", "ingress", list(ALL_MESSAGES), own))
         rules.append(_rule(f"{n}-own-out", "egress", list(ALL_MESSAGES), own))
+        rules += _host_daemon(ident)
         # ``rsal estop --all`` asks every base at once: the query's key names no robot
         stops = ["rsal/*/position2d/*/rpc/estop", "rsal/*/position2d/*/rpc/release"]
         rules.append(_rule(f"{n}-estop", "egress", ["query"], stops))
@@ -160,15 +166,30 @@ def _rules_of(ident: Identity) -> list[dict]:
             rules += _tokens(f"{n}-sim", [SIMULATION, _owners(SIMULATION)])
             rules += _call(f"{n}-sim", [f"{SIMULATION}/rpc/{op}" for op in SIM_READS])
     elif ident.kind == "operator":
-        everything = ["rsal/**", _owners("rsal/*/*/*"), "svc/**", "agents/**"]
+        everything = ["rsal/**", _owners("rsal/*/*/*"), "svc/**", "agents/**", "hosts/**"]
         rules += _read(f"{n}-all", everything) + _tokens(f"{n}-all", everything)
         rules.append(_rule(f"{n}-drive", "ingress", ["put"], ["rsal/*/*/*/cmd"]))
         rules += _call(f"{n}-rpc", ["rsal/*/*/*/rpc/*"])
+        # launch, stop and list agent hosts on the host daemons (rsal run with 'machine:'), and
+        # hold the launcher's token of its runs (the daemon stops a run when it goes)
+        rules += _call(f"{n}-hosts", [f"{HOSTS}/*/rpc/*"])
+        rules.append(_rule(f"{n}-runner", "ingress", ["liveliness_token"], [f"{HOSTS}/*/run/*/runner"]))
     elif ident.kind == "viewer":
         rules += _read(f"{n}-data", ["rsal/*/*/*/data", "rsal/*/*/*/event"])
         rules += _tokens(f"{n}-tokens", ["rsal/**", _owners("rsal/*/*/*"), "agents/**"])
         rules += _call(f"{n}-look", ["rsal/*/*/*/rpc/describe", "rsal/*/position2d/*/rpc/estop"])
     return rules
+
+
+def _host_daemon(ident: Identity) -> list[dict]:
+    """A robot host's ``rsal host`` daemon, named after the identity (``hosts/<name>``): its token,
+    the requests it answers, its runs' output and exits, and its launchers' tokens."""
+    n, h = ident.name, f"{HOSTS}/{ident.name}"
+    rules = [_rule(f"{n}-host-token", "ingress", ["liveliness_token"], [h])]
+    rules.append(_rule(f"{n}-host-serve", "ingress", ["declare_queryable", "reply"], [f"{h}/rpc/*"]))
+    rules.append(_rule(f"{n}-host-asked", "egress", ["query"], [f"{h}/rpc/*"]))
+    rules.append(_rule(f"{n}-host-runs", "ingress", ["put"], [f"{h}/run/*/out", f"{h}/run/*/exit"]))
+    return rules + _tokens(f"{n}-host-runners", [f"{h}/run/*/runner"])
 
 
 def acl(identities: list[Identity]) -> dict:

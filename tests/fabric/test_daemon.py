@@ -1,4 +1,4 @@
-"""The per-robot daemon (deploy/systemd/rsal-serve@.service): its ExecStart line, run the way
+"""The per-robot daemons (deploy/systemd/rsal-serve@.service; rsal-host.service below): its ExecStart line, run the way
 systemd runs it (the instance's env file substituted, the install path replaced by this checkout),
 serves the configured devices; SIGTERM, the unit's KillSignal, withdraws them and exits 0 within the
 unit's TimeoutStopSec. The example env file only names files and flags that exist."""
@@ -91,6 +91,47 @@ def test_exec_start_serves_and_sigterm_withdraws_within_the_stop_timeout(tmp_pat
         assert proc.p.returncode == 0, proc.output()
         assert time.monotonic() - t0 < stop_timeout
         wait_until(lambda: tokens() == [], 5, "the laser token to be withdrawn")
+        assert "Traceback" not in proc.output()
+    finally:
+        session.close()
+        proc.close()
+
+
+HOST_UNIT = ROOT / "deploy" / "systemd" / "rsal-host.service"
+HOST_ENV = ROOT / "deploy" / "systemd" / "host.env"
+
+
+def test_the_host_daemon_unit_announces_the_host_and_sigterm_withdraws_it(tmp_path):
+    """deploy/systemd/rsal-host.service with its example env file and the example host.toml (this
+    checkout's copy): the daemon's token hosts/r0 appears; SIGTERM withdraws it, exit 0 in time."""
+    cp = configparser.ConfigParser(strict=False, interpolation=None)
+    cp.optionxform = str
+    cp.read(HOST_UNIT)
+    svc = cp["Service"]
+    assert svc["KillSignal"] == "SIGTERM" and svc["Restart"] == "on-failure"
+    assert svc["EnvironmentFile"] == "/etc/rsal/host.env"
+    env = env_file(HOST_ENV)
+    assert set(env) == {"RSAL_HOST_CONFIG", "RSAL_ARGS"}
+    example = ROOT / "deploy" / "systemd" / env["RSAL_HOST_CONFIG"].rsplit("/", 1)[-1]
+    assert example.exists(), "the example host configuration is in deploy/systemd/"
+    port = free_port()
+    argv = expand(svc["ExecStart"], {"RSAL_HOST_CONFIG": str(example), "RSAL_ARGS": f"--listen tcp/127.0.0.1:{port}"})
+    assert argv[0] == f"{INSTALL}/.venv/bin/rsal" and argv[1] == "host"
+    proc = Proc([sys.executable, "-m", "rsal.cli", *argv[1:]])
+    session = open_session(TransportArgs(connect=[f"tcp/127.0.0.1:{port}"]))
+    try:
+
+        def tokens() -> list[str]:
+            return [str(r.ok.key_expr) for r in session.liveliness().get("hosts/*", timeout=1.0) if r.ok]
+
+        wait_until(lambda: tokens() == ["hosts/r0"], 30, "the host daemon's token")
+        t0 = time.monotonic()
+        proc.signal(getattr(signal, svc["KillSignal"]))
+        stop_timeout = float(svc["TimeoutStopSec"])
+        wait_until(lambda: not proc.alive(), stop_timeout, "the daemon to exit within TimeoutStopSec")
+        assert proc.p.returncode == 0, proc.output()
+        assert time.monotonic() - t0 < stop_timeout
+        wait_until(lambda: tokens() == [], 5, "the token to be withdrawn")
         assert "Traceback" not in proc.output()
     finally:
         session.close()

@@ -339,3 +339,88 @@ def test_the_command_line_makes_and_lists_identities(tmp_path):
         "r1\trobot\tnodes=r1",
         "hostA\tagents\tagents=hunter-1,hunter-2 services=send_position,outcome robots=r1",
     ]
+
+
+def test_only_the_operator_launches_on_a_host_daemon(fleet):
+    """Robot host r1 runs the host daemon ``hosts/r1`` (rsal host): the operator's requests reach it
+    and its launcher token is seen there; agent host A's requests and token never are, and robot
+    host r2 can neither announce a daemon that is not its own nor answer for r1's."""
+    _, s, _ = fleet
+    asked: list[bytes] = []
+    real = s["r1"].declare_queryable(
+        "hosts/r1/rpc/*", lambda q: (asked.append(q.payload.to_bytes()), q.reply(q.key_expr, ok_reply(who="r1")))
+    )
+    rogue = s["r2"].declare_queryable("hosts/r1/rpc/*", lambda q: q.reply(q.key_expr, ok_reply(who="r2")))
+    tokens = [s["r2"].liveliness().declare_token("hosts/r9"), s["r1"].liveliness().declare_token("hosts/r1")]
+    try:
+        seen = wait_until(lambda: _tokens(s["op"], "hosts/*") or None, 20, "r1's daemon token at the operator")
+        assert seen == ["hosts/r1"], f"host daemons seen by the operator: {seen}"
+
+        def operator_heard() -> bool:
+            for who, payload in (("hostA", b"agents"), ("op", b"operator")):
+                replies = [
+                    decode_map(r.ok.payload.to_bytes())["who"]
+                    for r in s[who].get("hosts/r1/rpc/launch", payload=payload, timeout=3)
+                    if r.ok
+                ]
+                assert who == "op" or replies == [], f"agent host A got answers {replies}"
+                if who == "op":
+                    assert replies in ([], ["r1"]), f"the operator's launch answered by {replies}"
+            return asked.count(b"operator") >= 3
+
+        wait_until(operator_heard, 30, "the operator's launch requests at r1's daemon", interval=0.05)
+        assert b"agents" not in asked, "an agent host's launch request reached the daemon"
+        runners = [s[n].liveliness().declare_token(f"hosts/r1/run/{n}/runner") for n in ("hostA", "op")]
+        try:
+            got = wait_until(lambda: _tokens(s["r1"], "hosts/r1/run/*/runner") or None, 20, "the operator's runner")
+            assert got == ["hosts/r1/run/op/runner"], f"launcher tokens seen by r1's daemon: {got}"
+        finally:
+            for t in runners:
+                t.undeclare()
+    finally:
+        for x in (real, rogue, *tokens):
+            x.undeclare()
+
+
+def test_a_secured_run_launches_on_the_robot_hosts_daemon_and_an_agent_host_cannot(fleet, tmp_path):
+    """``rsal host`` as robot host r1 (its agent hosts as agent host A), ``rsal run`` as the operator:
+    A's agent hunter-1 is launched on r1's daemon and its outcome ends the run; the same run as
+    agent host A does not even see the daemon (one line, exit 1)."""
+    f, _, _ = fleet
+    host_cfg = tmp_path / "host.toml"
+    host_cfg.write_text(f'[agents]\nconfig = "{f.member_config("hostA")}"\n')
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(
+        "scenario: secured\n"
+        "agent_types: {rep: tests.agents.scenario_agents:Reporter}\n"
+        "applications:\n"
+        "  a:\n"
+        "    agents: [{type: rep, id: hunter-1, machine: r1, args: {subjects: [r0], every: 0.3}}]\n"
+        "    end: {event: caught, count: 1, timeout: 60}\n"
+    )
+    daemon = Proc(
+        rsal_cmd("host", "--name", "r1", "--config", str(f.member_config("r1")), "--host-config", str(host_cfg))
+    )
+    try:
+        wait_until(lambda: "up: token hosts/r1" in daemon.output() or not daemon.alive(), 30, "r1's daemon")
+        assert daemon.alive(), daemon.output()
+        run = Proc(rsal_cmd("run", str(scenario), "--config", str(f.member_config("op"))))
+        try:
+            wait_until(lambda: not run.alive(), 90, "the operator's run to end")
+            out = run.output()
+            assert run.p.returncode == 0, out
+            assert "[run] launched hunter-1 on machine r1" in out and "[run] result: ok — " in out, out
+        finally:
+            run.close()
+        assert "launched run" in daemon.output()
+        run = Proc(rsal_cmd("run", str(scenario), "--config", str(f.member_config("hostA"))))
+        try:
+            wait_until(lambda: not run.alive(), 60, "agent host A's run to give up")
+            out = run.output()
+            assert run.p.returncode == 1, out
+            assert "rsal run: machine 'r1' (host group hunter-1): no host daemon hosts/r1 on the fabric" in out, out
+        finally:
+            run.close()
+        assert daemon.output().count("launched run") == 1
+    finally:
+        daemon.close()

@@ -24,6 +24,11 @@ the watcher as operators), every process connects to ``rsal router`` with its ow
 TLS; the prey and both hunters drive through the secured router (simulator ground truth), and a
 hunt that ends meanwhile must end with a catch the true poses confirm.
 
+An agent host placed on a robot host (``rsal host`` there, the scenario's ``machine: robot1``): the
+runner on the agent host launches r0's wall-follower on robot host 1's daemon, r0 drives (ground
+truth), and cutting robot host 1's link is reported by the runner as that machine lost with its
+agent (exit 1), within the lease and the runner's stop.
+
 Skipped, with the reason, where namespaces cannot be made (not root, no iproute2).
 """
 
@@ -317,6 +322,60 @@ def test_hunt_and_prey_across_hosts_in_the_secured_profile(lan, tmp_path):
             assert caught, out[-2000:]
             truth = [e["truth"] for e in watch.events() if "truth" in e and {"r0", caught[1]} <= set(e["truth"])]
             assert truth and moved(truth[-1]["r0"], truth[-1][caught[1]]) < 2.5
+    finally:
+        for p in procs:
+            p.close()
+
+
+@pytest.mark.timeout(300)
+def test_an_agent_host_launched_on_a_robot_hosts_daemon_drives_and_a_cut_loses_its_agents(lan, tmp_path):
+    """``rsal host`` on robot host 1: the runner on the agent host launches r0's wall-follower there
+    (scenario ``machine: robot1``); r0 drives (simulator ground truth); cutting robot host 1's link
+    is reported by the runner in one line, its agent counted as lost, and the run fails."""
+    sim_ep = f"tcp/{lan.host('sim')}:7447"
+    lan.host("robot1")
+    lan.host("agents")
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(
+        "scenario: placed\n"
+        "arguments: {report_every: 1.0, startup_timeout: 60}\n"
+        "agent_types: {wanderer: WallfollowAgent}\n"
+        "applications:\n"
+        "  a:\n"
+        "    agents: [{type: wanderer, robot: r0, id: wf0, machine: robot1}]\n"
+        "    end: {duration: 200, timeout: 260}\n"
+    )
+    procs: list[Proc] = []
+
+    def start(host: str, argv: list[str]) -> Proc:
+        p = Proc(lan.cmd(host, argv))
+        procs.append(p)
+        return p
+
+    try:
+        start("sim", rsal_cmd("sim", str(MAPS / "testroom.world"), "--listen", sim_ep, *TUNING))
+        daemon = start("robot1", rsal_cmd("host", "--name", "robot1", "--connect", sim_ep, *TUNING))
+        watch = Watch(
+            start(
+                "agents", [sys.executable, str(ROOT / "tests/fabric/netwatch.py"), "--connect", sim_ep, "--truth", "r0"]
+            )
+        )
+        wait_until(lambda: "up: token hosts/robot1" in daemon.output(), 60, "robot host 1's daemon")
+        wait_until(lambda: watch.truths("r0"), 60, "r0's true pose at the agent host")
+        run = start("agents", rsal_cmd("run", str(scenario), "--connect", sim_ep, "--progress", "2", *TUNING))
+        wait_until(lambda: "[run] all 1 agent(s) alive" in run.output() or not run.alive(), 90, "wf0 up on robot1")
+        assert run.alive(), run.output()
+        assert "[run] launched wf0 on machine robot1" in run.output()
+        first = watch.truths("r0")[-1]
+        wait_until(lambda: moved(watch.truths("r0")[-1], first) > 0.3, 60, "r0 to drive under wf0 (ground truth)")
+        lan.cut("robot1")
+        t_cut = time.monotonic()
+        wait_until(lambda: not run.alive(), LEASE_MS / 1000 * 2 + 20, "the runner to report robot host 1 lost")
+        out = run.output()
+        assert run.p.returncode == 1, out[-3000:]
+        assert "[run] machine robot1 lost mid-run: agents wf0 of host group wf0 are lost" in out, out[-3000:]
+        assert "was lost: host daemon 'robot1' left the fabric" in out
+        print(f"robot host 1 reported lost {time.monotonic() - t_cut:.1f} s after the cut (lease {LEASE_MS} ms)")
     finally:
         for p in procs:
             p.close()

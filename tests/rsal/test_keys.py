@@ -259,3 +259,19 @@ def test_template_with_too_many_parts_is_an_error(template):
         template_to_keyexpr(template)
     assert repr(template) in str(ei.value)
     assert "node:interface:index" in str(ei.value)
+
+
+def test_host_daemon_keys():
+    assert keys.host_key("robot1") == "hosts/robot1" and keys.host_key("*") == "hosts/*"
+    assert keys.host_rpc_key("robot1", "launch") == "hosts/robot1/rpc/launch"
+    assert keys.host_rpc_key("robot1") == "hosts/robot1/rpc/*"
+    assert keys.host_run_key("robot1", "ab12", "runner") == "hosts/robot1/run/ab12/runner"
+    assert keys.host_run_key("robot1") == "hosts/robot1/run/*/*"
+    for k in ("hosts/robot1/rpc/launch", "hosts/robot1/run/ab12/out"):
+        assert zenoh.KeyExpr(k).intersects(zenoh.KeyExpr("hosts/**"))
+    with pytest.raises(ValueError, match="host operation 'reboot': one of launch, stop, status"):
+        keys.host_rpc_key("robot1", "reboot")
+    with pytest.raises(ValueError, match="run key part 'log': one of out, exit, runner"):
+        keys.host_run_key("robot1", "ab12", "log")
+    with pytest.raises(ValueError, match="host name 'a/b' must be"):
+        keys.host_key("a/b")
