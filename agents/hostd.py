@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from rsal.errors import RsalError
 from rsal.keys import check_name, host_key, host_rpc_key, host_run_key
 from rsal.msgs import ErrorCode, MessageError, encode, error_reply, ok_reply
 from rsal.procs import Child, python_env, stop_all
@@ -75,7 +76,7 @@ _AGENTS = ("config",)
 _AWARE = ("class", "robots", "args", "period")
 
 
-class HostConfigError(ValueError):
+class HostConfigError(RsalError, ValueError):
     """A daemon configuration that cannot be used; one line naming the file, the key and a fix."""
 
 
@@ -380,7 +381,9 @@ class HostDaemon:
         return 0
 
 
-class _Refusal(Exception):
+class _Refusal(RsalError):
+    """A launch, stop or status request the daemon refuses: its typed code and one line."""
+
     def __init__(self, code: ErrorCode, text: str):
         super().__init__(text)
         self.code = code

@@ -18,6 +18,7 @@ import queue
 import threading
 import time
 
+from rsal.errors import RsalError
 from rsal.keys import host_key, host_rpc_key, host_run_key
 from rsal.msgs import MessageError, RpcError, decode, encode, parse_reply
 
@@ -32,7 +33,7 @@ LOST = -1000
 ASK_TIMEOUT = 10.0
 
 
-class RemoteError(ValueError):
+class RemoteError(RsalError, ValueError):
     """A launch that could not be made; one line naming the machine and the fix."""
 
 

@@ -17,6 +17,9 @@ category, the class also derives from it, so ``except ValueError`` still works::
     ├── PlanError                               mrs_bridge.nav.wavefront: no plan (outside the map, ...)
     ├── ScenarioError (ValueError)              agents.scenario: a scenario file is wrong (file:line)
     ├── HostError (ValueError)                  agents.hostproc: a host group or an agent that cannot be built
+    ├── HostConfigError (ValueError)            agents.hostd: a host daemon's configuration that cannot be used
+    ├── _Refusal                                agents.hostd: a request the host daemon refuses (private)
+    ├── RemoteError (ValueError)                agents.remote: a launch on a machine's daemon that could not be made
     ├── AgentClassError (LookupError)           agents.registry: no such agent class
     ├── ApiError (ValueError)                   agents.control.api: a bad request to the control center
     ├── SecureError (ValueError)                rsal.secure: a fleet folder or identity that cannot be made
