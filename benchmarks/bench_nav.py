@@ -9,7 +9,9 @@ the simulator's true pose at every step of every trial). Targets: >= 95 % reache
 collision for each planner, and a worst localization error <= 0.15 m (the project's promise; the
 thesis requires 0.30 m). ``--baseline`` runs every planner a second time with the filter as it was
 before the distance filter (Player's odometry noise ``odom_alpha`` 0.2, ``laser_unmodeled_margin``
-0), on the same seeded pairs, so both are measured in the same run (``amcl=baseline`` lines).
+0) with the same seed, so both are measured in the same run (``amcl=baseline`` lines). The pairs
+agree only until the two runs' other robots have drawn different numbers from the shared generator
+(goal_trials), so compare success and localization, not mean times pair by pair.
 
 **Capacity** (``--robots``, default 10,25,50,100): N Pioneers with an URG laser in the 128 m arena,
 each with its own AMCL (200-2000 particles), Wavefront executive and VFH, driving to random goals
