@@ -22,6 +22,10 @@ Player's ``amcl`` parameter names, vectorised over particles and beams at once:
   ring use the same model; a sonar beam may be a cone (``beam_width``), scored by the best of
   :data:`CONE_RAYS` rays across it, since the echo comes from the nearest surface anywhere in the
   cone. A compiled kernel (numba) makes one fused pass over particles x beams.
+* **Distance filter** (an extension, ``laser_unmodeled_margin``; Fox, Burgard and Thrun, "Markov
+  localization for mobile robots in dynamic environments", JAIR 11, 1999, sec. 4.2): while the
+  belief is tight, laser readings much shorter than the map predicts at the mean pose (a robot or a
+  person not on the map cut them short) are left out of the update (:mod:`.distfilter`).
 * **Tempering** (an extension, ``pf_temper_ess``): beams are not independent, and with the plain
   product of 30 beams one update can leave a single particle standing. Each scan's likelihood is
   raised to the largest power ``beta`` in (0, 1] that keeps the effective sample size of the new
@@ -67,6 +71,7 @@ from scipy.sparse.csgraph import connected_components
 from rsal.geometry import compose_array, relative, wrap
 
 from .amclparams import AmclParams
+from .distfilter import expected_ranges, unmodeled
 from .grid import NavGrid
 
 __all__ = [
@@ -240,6 +245,9 @@ class Amcl:
         self._free_x, self._free_y = grid.cell_to_world(fx, fy)
         self._fields: dict[float, np.ndarray] = {}  # log-likelihood tables per range_max
         self._surface: np.ndarray | None = None
+        self._blocked: np.ndarray | None = None  # cells a beam stops at (distance filter)
+        #: readings of the last scan the distance filter left out (``laser_unmodeled_margin``)
+        self.n_unmodeled = 0
         #: the power the last scan's likelihood was raised to (1: none; see ``pf_temper_ess``)
         self.temper = 1.0
         self.n_updates = 0
@@ -475,6 +483,11 @@ class Amcl:
             idx = idx[np.linspace(0, idx.size - 1, k).round().astype(np.intp)]
         zi, bi, oi, wi = z[idx], b[idx], o[idx], width[idx]
         rays = CONE_RAYS if np.any(wi > 0.0) else 1
+        margin = self.params.laser_unmodeled_margin
+        if margin > 0.0 and rays == 1:  # a laser: leave out readings cut short by what the map lacks
+            keep = ~self._unmodeled(zi, bi, oi, float(rmax[idx].max()), margin)
+            self.n_unmodeled = int(keep.size - keep.sum())
+            idx, zi, bi, oi, wi = idx[keep], zi[keep], bi[keep], oi[keep], wi[keep]
         if rays > 1:  # beam-major: the rays of beam j are entries j*rays .. j*rays+rays-1
             bi = (bi[:, None] + wi[:, None] * np.linspace(-0.5, 0.5, rays)).reshape(-1)
             zi, oi = np.repeat(zi, rays), np.repeat(oi, rays, axis=0)
@@ -488,6 +501,18 @@ class Amcl:
             self._resample()
             self._since_resample = 0
         return True
+
+    def _unmodeled(self, z, bearings, origins, range_max: float, margin: float) -> np.ndarray:
+        """The distance filter (:mod:`mrs_bridge.nav.distfilter`) at the weighted mean pose, while
+        the belief's position standard deviation is at most ``margin``; else nothing is left out."""
+        mean, cov = _mean_cov(*self._weighed())
+        if math.sqrt(max(float(np.linalg.eigvalsh(cov[:2, :2])[-1]), 0.0)) > margin:
+            return np.zeros(z.shape[0], dtype=bool)
+        if self._blocked is None:
+            self._blocked = ~self.grid.free
+        g = self.grid
+        exp = expected_ranges(self._blocked, g.resolution, g.origin, mean, bearings, origins, range_max)
+        return unmodeled(z, exp, margin)
 
     def _weigh(self, loglik: np.ndarray, n_beams: int) -> None:
         lw0 = np.log(np.maximum(self.weights, 1e-300))

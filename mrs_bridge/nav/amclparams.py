@@ -57,6 +57,9 @@ class AmclParams:
     seed: int | None = None
     # Not a Player parameter: adaptive tempering of the scan likelihood (nav.amcl's docstring); 0 = off.
     pf_temper_ess: float = 0.5
+    # Not a Player parameter: the distance filter (nav.distfilter); a laser reading this many metres
+    # shorter than the map predicts at the estimate is left out; 0 = off (Player's behaviour).
+    laser_unmodeled_margin: float = 0.0  # m
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -89,7 +92,7 @@ class AmclParams:
 
 _INT_MIN = {"pf_min_samples": 1, "pf_max_samples": 1, "laser_max_beams": 1, "resample_interval": 1}
 _POSITIVE = {"pf_err", "pf_z", "laser_z_hit", "laser_sigma_hit", "laser_likelihood_max_dist"}
-_NON_NEGATIVE = {"odom_alpha1", "odom_alpha2", "odom_alpha3", "odom_alpha4", "laser_z_rand"}
+_NON_NEGATIVE = {"odom_alpha1", "odom_alpha2", "odom_alpha3", "odom_alpha4", "laser_z_rand", "laser_unmodeled_margin"}
 _UNIT = {"recover_alpha_slow", "recover_alpha_fast", "pf_temper_ess"}
 _TUPLES = {"update_thresh": (2, True), "init_pose": (3, False), "init_pose_var": (3, True)}
 

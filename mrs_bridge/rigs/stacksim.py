@@ -313,9 +313,11 @@ def goal_trials(
     timeout: float = 150.0,
     movers: int = 2,
     progress=None,
+    amcl: dict | None = None,
 ) -> list[GoalResult]:
     """``n`` random reachable start/goal pairs on ``world_file``'s map for robot ``r0`` with
-    ``local`` behind Wavefront and AMCL, ``movers`` other robots moving near the route."""
+    ``local`` behind Wavefront and AMCL, ``movers`` other robots moving near the route; ``amcl``
+    overrides the navigation profile's filter parameters."""
     from simulator.loader import load_world
 
     spec = load_world(world_file, seed=seed)
@@ -365,7 +367,7 @@ def goal_trials(
             else:
                 world.set_pose(o, *free_pose(clear, rng, ext, 0.6))
         world.step()
-        stack = RobotStack(world, "r0", local, base.clone(), seed=seed * 1000 + k)
+        stack = RobotStack(world, "r0", local, base.clone(), seed=seed * 1000 + k, amcl=amcl)
         mv = Movers(world, others, base, rng) if others else None
         r = run_goal(stack, g, timeout=timeout, others=mv)
         results.append(r)

@@ -22,6 +22,7 @@ import threading
 import time
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from agents.navigation import NavAgent
@@ -159,6 +160,32 @@ def test_hunter_plans_for_where_the_prey_is_now_between_its_broadcasts():
         set_clock(old)
 
 
+def test_a_hunter_unsure_where_it_is_does_not_claim_a_catch():
+    """Within the capture distance of the prey, a hunter claims the catch only while its localizer's
+    position standard deviation (the larger axis) is at most max_pose_sd; until then it chases on."""
+    c = _FakeClock()
+    old = set_clock(c)
+    try:
+        h = FollowAgent("h1", robot="r1", prey="r0", max_pose_sd=0.3)
+        cov = np.diag([0.05**2, 0.6**2, 0.01])  # 0.6 m across y: unsure
+        loc = SimpleNamespace(covariance=lambda: cov)
+        h.pioneer = SimpleNamespace(position=Position(0.0, 0.0, 0.0), localize=loc)
+        h._next_report = math.inf
+        published: list[Outcome] = []
+        h.publish = lambda service, body, **kw: published.append(body)
+        h.host = SimpleNamespace(spawn=lambda coro, name: coro.close())
+        h.start_goal = lambda goal, report=True: None
+        h._on_position(Message("send_position", "prey0", "p0", c.t, SendPosition("r0", 0.8, 0.0, 0.0)))
+        asyncio.run(h.step())
+        assert published == [] and h.prey == "r0" and h.pose_sd() == pytest.approx(0.6)
+        cov = np.diag([0.1**2, 0.2**2, 0.01])  # settled
+        c.t += 1.0
+        asyncio.run(h.step())
+        assert [(o.event, o.subject) for o in published] == [("caught", "r0")] and h.catches == 1
+    finally:
+        set_clock(old)
+
+
 def test_bad_arguments_are_clear_errors():
     with pytest.raises(TypeError):
         NavAgent("nav1", robot="r1", bogus=1)
@@ -168,6 +195,8 @@ def test_bad_arguments_are_clear_errors():
         FollowAgent("h1", robot="r1", prey="r0", allocation="auction")
     with pytest.raises(ValueError, match="capture_distance"):
         FollowAgent("h1", robot="r1", prey="r0", capture_distance=-1)
+    with pytest.raises(ValueError, match="max_pose_sd"):
+        FollowAgent("h1", robot="r1", prey="r0", max_pose_sd=-1)
     with pytest.raises(ValueError, match="goal_timeout"):
         NavAgent("nav1", robot="r1", goal_timeout=0)
     with pytest.raises(ValueError, match="speed"):

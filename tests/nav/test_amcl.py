@@ -29,6 +29,7 @@ from mrs_bridge.nav.amcl import (
     likelihood_field_numpy,
     systematic_indices,
 )
+from mrs_bridge.nav.distfilter import expected_ranges, unmodeled
 from mrs_bridge.nav.grid import NavGrid
 from rsal.geometry import compose
 from simulator import load_world
@@ -559,3 +560,64 @@ def test_unknown_cells_bound_the_likelihood_field_as_walls_do():
     known = np.where(walled > 0, 1, -1).astype(np.int8)
     g = NavGrid(known, 0.05, (0.0, 0.0))
     np.testing.assert_allclose(Amcl(g)._surface_distance()[g.free], g.distance[g.free] - 0.025)
+
+
+# ---------------------------------------------------------------------- distance filter
+def test_expected_ranges_march_to_the_first_blocked_cell_and_off_the_map():
+    """A 2 m x 2 m room at 0.05 m with walls two cells thick and an opening in the east wall at
+    y = 0.95..1.05 m. From (0.5, 0.5) facing east: the east wall 1.4 m away, the west wall 0.4 m,
+    the north wall 1.4 m; a beam mounted 0.475 m to the left leaves through the opening and ends at
+    the map's edge (x = 2 m); nothing within a 1 m range is infinite."""
+    cells = np.full((40, 40), -1, dtype=np.int8)
+    cells[:, :2] = cells[:, 38:] = cells[:2, :] = cells[38:, :] = 1
+    cells[19:21, 38:] = -1
+    blocked = cells >= 0
+    pose = (0.5, 0.5, 0.0)
+    bearings = [0.0, math.pi, math.pi / 2, 0.0]
+    origins = [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.475]]
+    exp = expected_ranges(blocked, 0.05, (0.0, 0.0), pose, bearings, origins, 5.0)
+    np.testing.assert_allclose(exp, [1.4, 0.4, 1.4, 1.5], atol=0.026)
+    assert np.isinf(expected_ranges(blocked, 0.05, (0.0, 0.0), pose, [0.0], [[0.0, 0.0]], 1.0)).all()
+
+
+def test_unmodeled_leaves_out_short_readings_but_never_most_of_a_scan():
+    expected = np.array([2.0, 2.0, 2.0, 2.0, 2.0])
+    assert unmodeled([1.0, 1.9, 2.0, 1.6, 3.0], expected, 0.3).tolist() == [True, False, False, True, False]
+    assert not unmodeled([1.0, 1.0, 1.0, 2.0, 2.0], expected, 0.3).any()  # 3 of 5: the estimate is wrong
+
+
+def test_distance_filter_keeps_the_estimate_beside_a_robot_not_on_the_map(floor_spec):
+    """Tracking from the corridor with a second Pioneer (not on the map) parked 1 m ahead: the
+    distance filter leaves readings out (the intruder's) in every seed and the worst error stays
+    under 0.15 m. (Here, with the intruder seen only briefly, the filter does not help: the worst
+    errors are 0.086 / 0.074 / 0.106 m without it, 0.105 / 0.133 / 0.138 m with it; its benefit
+    with robots crossing the route is measured by benchmarks/bench_nav.py, docs/benchmarks.md.)"""
+    worst, left_out = [], []
+    for seed in range(3):
+        w = World(floor_spec, seed=seed)
+        w.remove_model("r0")
+        grid = _grid(w)
+        truth = w.get_pose(ROBOT)
+        w.set_pose("r2", truth[0] + math.cos(truth[2]), truth[1] + math.sin(truth[2]), truth[2])
+        amcl = Amcl(
+            grid,
+            AmclParams(
+                seed=seed,
+                init_pose=tuple(truth),
+                init_pose_var=(0.01, 0.01, 0.003),
+                laser_unmodeled_margin=0.5,
+                **TUNED,
+            ),
+        )
+        seen = []
+
+        def watch(errs, amcl=amcl, seen=seen):
+            seen.append(amcl.n_unmodeled)
+            return False
+
+        errors, _ = _drive(w, amcl, 1, 300, until=watch)
+        worst.append(float(errors.max()))
+        left_out.append(max(seen))
+    print(f"\ndistance filter: worst errors {np.round(worst, 3).tolist()}, most readings left out {left_out}")
+    assert max(worst) < 0.15, worst
+    assert min(left_out) > 0, left_out

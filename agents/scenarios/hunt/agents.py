@@ -6,7 +6,9 @@ between messages by a Kalman filter (:mod:`rsal.tracking`) -- planning again whe
 moved more than ``replan_distance`` from the current goal (at most once per ``replan_interval``).
 When its localized pose comes within ``capture_distance`` of the prey it publishes ``outcome``
 ``caught`` (subject: the prey's robot) and stops; the prey (:class:`EscapeAgent`) then spins in
-place.
+place. A hunter claims a catch only while it is sure where it is: the position standard deviation of
+its localizer's covariance (the larger axis of the x-y ellipse) must be at most ``max_pose_sd``;
+otherwise it keeps chasing (and says so, once per minute) until its localization has settled.
 
 In the advanced form (``allocation="contract_net"``) the hunters share out the prey themselves with
 the contract net of :mod:`agents.contractnet`: the hunter with the lowest id is the auctioneer. Every
@@ -28,6 +30,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+
+import numpy as np
 
 from agents.classes import WallfollowAgent
 from agents.contractnet import Initiator, Participant
@@ -67,6 +71,7 @@ class FollowAgent(NavAgent):
         capture_distance: float = 1.0,
         replan_distance: float = 0.75,
         replan_interval: float = 1.0,
+        max_pose_sd: float = 0.3,
         **kw,
     ):
         super().__init__(agent_id, **kw)
@@ -81,6 +86,8 @@ class FollowAgent(NavAgent):
         self.capture_distance = _number(agent_id, "capture_distance", capture_distance, 0.0, 20.0)
         self.replan_distance = _number(agent_id, "replan_distance", replan_distance, 0.0, 20.0)
         self.replan_interval = _number(agent_id, "replan_interval", replan_interval, 0.0, 60.0)
+        self.max_pose_sd = _number(agent_id, "max_pose_sd", max_pose_sd, 0.0, 20.0)
+        self._unsure_said = -math.inf  # when the hunter last said it is too unsure to claim a catch
         self.positions: dict[str, SendPosition] = {}  # robot id -> latest broadcast position
         self.tracks = Tracks()  # robot id -> Kalman track of its broadcasts (where it is between them)
         self.caught: dict[str, str] = {}  # prey robot -> the outcome text
@@ -243,7 +250,7 @@ class FollowAgent(NavAgent):
         if target is None or me is None:
             return
         d = math.hypot(target.x - me.x, target.y - me.y)
-        if d <= self.capture_distance:
+        if d <= self.capture_distance and self._sure_where(now):
             text = f"prey {prey} caught by {self.robot} after {now - self._hunt_start:.1f} s"
             log.info("%s: %s", self.id, text)
             self.caught[prey] = text
@@ -270,6 +277,36 @@ class FollowAgent(NavAgent):
             goal = Position(target.x - back * math.cos(heading), target.y - back * math.sin(heading), heading)
             self._chase_goal = Position(target.x, target.y, heading)
             self._goal_task = self.start_goal(goal, report=False)
+
+    def pose_sd(self) -> float | None:
+        """The localizer's position standard deviation (m): the square root of the larger eigenvalue
+        of the covariance's x-y block; None while there is no localize device or no estimate."""
+        loc = self.nav.localize if self.nav is not None else None
+        cov = loc.covariance() if loc is not None else None
+        if cov is None:
+            return None
+        xy = cov[:2, :2]
+        if not np.all(np.isfinite(xy)):
+            return math.inf
+        return math.sqrt(max(float(np.linalg.eigvalsh(0.5 * (xy + xy.T))[-1]), 0.0))
+
+    def _sure_where(self, now: float) -> bool:
+        """Whether the hunter's localization is certain enough to claim a catch (``max_pose_sd``)."""
+        sd = self.pose_sd()
+        if sd is None or sd <= self.max_pose_sd:
+            return True
+        if now - self._unsure_said >= 60.0:
+            self._unsure_said = now
+            log.warning(
+                "%s: within %.1f m of %s, but not claiming the catch: localization standard deviation "
+                "%.2f m is above max_pose_sd %.2f m; chasing on until it settles",
+                self.id,
+                self.capture_distance,
+                self.prey,
+                sd,
+                self.max_pose_sd,
+            )
+        return False
 
     def status(self) -> str:
         line = super().status()
