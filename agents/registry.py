@@ -43,6 +43,8 @@ CLASS_MODULES: dict[str, str] = {
     "SwarmMonitor": "agents.scenarios.swarm.monitor",
     "DispersionAgent": "agents.scenarios.distribution.agents",
     "ViewAgent": "agents.scenarios.mixed.agents",
+    "DispatcherAgent": "agents.dispatch.agent",
+    "FleetAgent": "agents.dispatch.agent",
 }
 
 #: modules that scenario files named before the scenarios moved to ``agents.scenarios`` -> the package
