@@ -40,7 +40,7 @@ from .mapcheck import MapCheck
 from .tasks import DispatchMsg, FleetMsg, Task, TaskRefused, TaskRequest, TaskStatus, decode_body, parse_task
 from .tasks import task_places as places
 
-__all__ = ["DispatcherAgent", "FleetAgent", "parse_chargers"]
+__all__ = ["DispatcherAgent", "FleetAgent", "FleetWorker", "parse_chargers"]
 
 log = logging.getLogger(__name__)
 
@@ -227,8 +227,160 @@ class DispatcherAgent(Agent):
                 pass
 
 
+class FleetWorker:
+    """The robot side of the dispatcher, for any :class:`~agents.runtime.Agent` subclass: bids,
+    its queue, status reports and performing tasks in order. The agent class provides
+    :meth:`where` (its map position or None), :meth:`battery` (0..1 or None without a battery
+    model), :meth:`charging` and :meth:`perform` (do one task, return ``""`` or why not); it calls
+    :meth:`start_worker` from ``created()`` and :meth:`report_status` from its steps."""
+
+    def init_worker(self, *, speed: float, threshold: float, target: float, status_every: float, agent_id: str) -> None:
+        self.speed = number_arg(agent_id, "speed", speed, 0.0)
+        self.threshold, self.target = float(threshold), float(target)
+        self.status_every = number_arg(agent_id, "status_every", status_every, 0.0)
+        self.queue: list[Task] = []  # awarded, not started
+        self.active: Task | None = None
+        self.dispatcher = ""  # the agent whose calls it answers (the first that awards it anything)
+        self.done: list[str] = []  # tasks it performed, in order
+        self._wake: asyncio.Event | None = None
+        self._warned: set = set()
+        self._next_status = -math.inf
+
+    # to provide
+    def where(self) -> tuple[float, float] | None:
+        raise NotImplementedError
+
+    def battery(self) -> float | None:
+        return None
+
+    def charging(self) -> bool:
+        return False
+
+    async def perform(self, task: Task) -> str:
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ messages
+    def start_worker(self) -> None:
+        self._wake = asyncio.Event()
+        self.subscribe(  # type: ignore[attr-defined]
+            DispatchMsg.SERVICE,
+            _typed(DispatchMsg.SERVICE, self.id, self._warned)(self._on_dispatch),  # type: ignore[attr-defined]
+            filter=lambda m: isinstance(m.body, dict) and m.body.get("to") in ("", self.id),  # type: ignore[attr-defined]
+        )
+        self._worker = self._require_host().spawn(self._work(), f"{self.id}: tasks")  # type: ignore[attr-defined]
+
+    def stop_worker(self) -> None:
+        """Stop working (from ``killed()``): the active task is abandoned, not finished."""
+        w = getattr(self, "_worker", None)
+        if w is not None and not w.done():
+            w.cancel()
+
+    def _on_dispatch(self, msg: Message, m: DispatchMsg) -> None:
+        if self.dispatcher and msg.sender != self.dispatcher:
+            return
+        if m.op == "call":
+            if self.id not in m.exclude:  # type: ignore[attr-defined]
+                self._bid(m)
+        elif m.op == "award":
+            try:
+                task = parse_task(m.task)
+            except TaskRefused as e:
+                self._fleet(FleetMsg("progress", task_id=m.task_id, state="failed", reason=str(e)))
+                return
+            self.dispatcher = self.dispatcher or msg.sender
+            if any(t.id == task.id for t in self.queue) or (self.active and self.active.id == task.id):
+                return
+            if task.kind == "charge":  # a charge goes before any other work waiting
+                self.queue.insert(0, task)
+            else:
+                i = m.index - (1 if self.active is not None else 0)
+                self.queue.insert(max(0, min(i, len(self.queue))) if m.index >= 0 else len(self.queue), task)
+            assert self._wake is not None
+            self._wake.set()
+        elif m.op == "revoke":
+            self.queue = [t for t in self.queue if t.id != m.task_id]
+
+    def _fleet(self, body: FleetMsg) -> None:
+        if self.host is not None and self.state == "running":  # type: ignore[attr-defined]
+            self.publish(FleetMsg.SERVICE, body)  # type: ignore[attr-defined]
+
+    def _bid(self, m: DispatchMsg) -> None:
+        try:
+            task = parse_task(m.task)
+        except TaskRefused as e:
+            self._fleet(FleetMsg("refuse", task_id=m.task_id, round=m.round, reason=str(e)))
+            return
+        pose = self.where()
+        if pose is None:
+            self._fleet(FleetMsg("refuse", task_id=m.task_id, round=m.round, reason="no pose yet"))
+            return
+        busy = 0.0
+        if self.active is not None and places(self.active):
+            end = places(self.active)[-1]
+            busy, pose = math.dist(pose, end) / self.speed, end
+        queue = [t for t in self.queue if t.id != task.id]
+        b = plan_bid(
+            pose, queue, task, speed=self.speed, battery=self.battery(), threshold=self.threshold,
+            target=self.target, busy_until=busy,
+        )  # fmt: skip
+        if b is None:
+            self._fleet(FleetMsg("refuse", task_id=m.task_id, round=m.round, reason="unreachable"))
+            return
+        index = b.index + (1 if self.active is not None else 0)
+        self._fleet(FleetMsg("bid", task_id=m.task_id, round=m.round, cost=b.cost, finish=b.finish, index=index))
+
+    def report_status(self) -> None:
+        """Send a ``fleet`` status when ``status_every`` seconds passed since the last one."""
+        now = clock().now()
+        p = self.where()
+        if now < self._next_status or p is None:
+            return
+        self._next_status = now + self.status_every
+        b = self.battery()
+        ids = tuple(([self.active.id] if self.active else []) + [t.id for t in self.queue])
+        self._fleet(
+            FleetMsg(
+                "status", robot=self.robot, x=p[0], y=p[1], battery=-1.0 if b is None else min(1.0, max(0.0, b)),  # type: ignore[attr-defined]
+                charging=self.charging(), queue=ids, active=self.active.id if self.active else "",
+            )
+        )  # fmt: skip
+
+    # ------------------------------------------------------------------ work
+    async def _work(self) -> None:
+        assert self._wake is not None
+        while self.state == "running":  # type: ignore[attr-defined]
+            if not self.queue:
+                self._wake.clear()
+                await self._wake.wait()
+                continue
+            task = self.active = self.queue.pop(0)
+            self._fleet(FleetMsg("progress", task_id=task.id, state="active"))
+            try:
+                reason = await self.perform(task)
+            except asyncio.CancelledError:
+                raise
+            except Exception as e:
+                log.exception("%s: task %s failed", self.id, task.id)  # type: ignore[attr-defined]
+                reason = f"{type(e).__name__}: {e}"
+            self.active = None
+            if reason:
+                self._fleet(FleetMsg("progress", task_id=task.id, state="failed", reason=reason))
+            else:
+                self.done.append(task.id)
+                self._fleet(FleetMsg("progress", task_id=task.id, state="done"))
+
+    def forfeit(self, task_id: str, reason: str = "forfeit") -> bool:
+        """Give back a task not started; the dispatcher re-bids it."""
+        for t in self.queue:
+            if t.id == task_id:
+                self.queue.remove(t)
+                self._fleet(FleetMsg("progress", task_id=task_id, state="forfeit", reason=reason))
+                return True
+        return False
+
+
 @agent_class("FleetAgent")
-class FleetAgent(NavAgent):
+class FleetAgent(FleetWorker, NavAgent):
     """A navigating robot agent that bids for and performs dispatcher tasks (module docstring).
     ``speed``: m/s for its bids; ``threshold``/``target``: the dispatcher's charging policy, for
     its bids and for when a charge is done; ``status_every``: s between ``fleet`` status reports;
@@ -247,31 +399,16 @@ class FleetAgent(NavAgent):
         charge_timeout: float = 36000.0,
         **kw,
     ):
-        super().__init__(agent_id, **kw)
-        self.speed = number_arg(agent_id, "speed", speed, 0.0)
-        self.threshold, self.target = float(threshold), float(target)
-        self.status_every = number_arg(agent_id, "status_every", status_every, 0.0)
+        NavAgent.__init__(self, agent_id, **kw)
+        self.init_worker(speed=speed, threshold=threshold, target=target, status_every=status_every, agent_id=agent_id)
         self.charge_timeout = number_arg(agent_id, "charge_timeout", charge_timeout, 0.0)
-        self.queue: list[Task] = []  # awarded, not started
-        self.active: Task | None = None
-        self.dispatcher = ""  # the agent whose calls it answers (the first that awards it anything)
         self.power = None
         self.has_battery = True
-        self.done: list[str] = []
-        self._wake: asyncio.Event | None = None
-        self._warned: set = set()
-        self._next_status = 0.0
 
     async def created(self) -> None:
-        self._wake = asyncio.Event()
-        await super().created()
-        self.subscribe(
-            DispatchMsg.SERVICE,
-            _typed(DispatchMsg.SERVICE, self.id, self._warned)(self._on_dispatch),
-            filter=lambda m: isinstance(m.body, dict) and m.body.get("to") in ("", self.id),
-        )
+        await NavAgent.created(self)
         await asyncio.to_thread(self._find_power)
-        self._require_host().spawn(self._work(), f"{self.id}: tasks")
+        self.start_worker()
 
     def _find_power(self) -> None:
         if self.fabric is None:
@@ -285,107 +422,25 @@ class FleetAgent(NavAgent):
             self.has_battery = False
             log.warning("%s: no power device for %s (%s): no battery model", self.id, self.robot, e)
 
-    # ------------------------------------------------------------------ messages
-    def _on_dispatch(self, msg: Message, m: DispatchMsg) -> None:
-        if self.dispatcher and msg.sender != self.dispatcher:
-            return
-        if m.op == "call":
-            if self.id in m.exclude:
-                return
-            self._bid(msg.sender, m)
-        elif m.op == "award":
-            try:
-                task = parse_task(m.task)
-            except TaskRefused as e:
-                self._fleet(FleetMsg("progress", task_id=m.task_id, state="failed", reason=str(e)))
-                return
-            self.dispatcher = self.dispatcher or msg.sender
-            if any(t.id == task.id for t in self.queue) or (self.active and self.active.id == task.id):
-                return
-            i = m.index - (1 if self.active is not None else 0)
-            self.queue.insert(max(0, min(i, len(self.queue))) if m.index >= 0 else len(self.queue), task)
-            if task.kind == "charge":  # a charge goes before any other work waiting
-                self.queue.remove(task)
-                self.queue.insert(0, task)
-            assert self._wake is not None
-            self._wake.set()
-        elif m.op == "revoke":
-            self.queue = [t for t in self.queue if t.id != m.task_id]
-
-    def _fleet(self, body: FleetMsg) -> None:
-        if self.host is not None and self.state == "running":
-            self.publish(FleetMsg.SERVICE, body)
+    def where(self) -> tuple[float, float] | None:
+        p = self.nav.position if self.nav is not None else None
+        return (p.x, p.y) if p is not None else None
 
     def battery(self) -> float | None:
         if not self.has_battery or self.power is None:
             return None
         return self.power.fraction
 
-    def _bid(self, dispatcher: str, m: DispatchMsg) -> None:
-        try:
-            task = parse_task(m.task)
-        except TaskRefused as e:
-            self._fleet(FleetMsg("refuse", task_id=m.task_id, round=m.round, reason=str(e)))
-            return
-        p = self.nav.position if self.nav is not None else None
-        if p is None:
-            self._fleet(FleetMsg("refuse", task_id=m.task_id, round=m.round, reason="no pose yet"))
-            return
-        pose = (p.x, p.y)
-        busy = 0.0
-        if self.active is not None and places(self.active):
-            end = places(self.active)[-1]
-            busy, pose = math.dist(pose, end) / self.speed, end
-        queue = [t for t in self.queue if t.id != task.id]
-        b = plan_bid(
-            pose, queue, task, speed=self.speed, battery=self.battery(), threshold=self.threshold,
-            target=self.target, busy_until=busy,
-        )  # fmt: skip
-        if b is None:
-            self._fleet(FleetMsg("refuse", task_id=m.task_id, round=m.round, reason="unreachable"))
-            return
-        index = b.index + (1 if self.active is not None else 0)
-        self._fleet(FleetMsg("bid", task_id=m.task_id, round=m.round, cost=b.cost, finish=b.finish, index=index))
+    def charging(self) -> bool:
+        return bool(self.power.charging) if self.power is not None and self.has_battery else False
 
     async def step(self) -> None:
-        await super().step()
-        now = clock().now()
-        if now >= self._next_status and self.nav is not None and self.nav.position is not None:
-            self._next_status = now + self.status_every
-            p = self.nav.position
-            b = self.battery()
-            charging = bool(self.power.charging) if self.power is not None and self.has_battery else False
-            ids = tuple(([self.active.id] if self.active else []) + [t.id for t in self.queue])
-            self._fleet(
-                FleetMsg(
-                    "status", robot=self.robot, x=p.x, y=p.y, battery=-1.0 if b is None else min(1.0, max(0.0, b)),
-                    charging=charging, queue=ids, active=self.active.id if self.active else "",
-                )
-            )  # fmt: skip
+        await NavAgent.step(self)
+        self.report_status()
 
-    # ------------------------------------------------------------------ work
-    async def _work(self) -> None:
-        assert self._wake is not None
-        while self.state == "running":
-            if not self.queue:
-                self._wake.clear()
-                await self._wake.wait()
-                continue
-            task = self.active = self.queue.pop(0)
-            self._fleet(FleetMsg("progress", task_id=task.id, state="active"))
-            try:
-                reason = await self.perform(task)
-            except asyncio.CancelledError:
-                raise
-            except Exception as e:
-                log.exception("%s: task %s failed", self.id, task.id)
-                reason = f"{type(e).__name__}: {e}"
-            self.active = None
-            if reason:
-                self._fleet(FleetMsg("progress", task_id=task.id, state="failed", reason=reason))
-            else:
-                self.done.append(task.id)
-                self._fleet(FleetMsg("progress", task_id=task.id, state="done"))
+    async def killed(self) -> None:
+        self.stop_worker()
+        await NavAgent.killed(self)
 
     async def perform(self, task: Task) -> str:
         """Do ``task``; returns ``""`` when done, else why not."""
@@ -405,12 +460,3 @@ class FleetAgent(NavAgent):
                     return f"not charged to {target:.0%} within {self.charge_timeout:g} s"
                 await clock().asleep(1.0)
         return ""
-
-    def forfeit(self, task_id: str, reason: str = "forfeit") -> bool:
-        """Give back a task not started; the dispatcher re-bids it."""
-        for t in self.queue:
-            if t.id == task_id:
-                self.queue.remove(t)
-                self._fleet(FleetMsg("progress", task_id=task_id, state="forfeit", reason=reason))
-                return True
-        return False

@@ -149,6 +149,7 @@ class Dispatcher:
         self.check = check
         self.name = name
         self.tasks: dict[str, TaskRecord] = {}
+        self._open: set[str] = set()  # tasks with a call open or waiting for the next call
         self.robots: dict[str, RobotRecord] = {}
         self.latencies: list[float] = []  # award time - window close, per award after a call
         self._ids = itertools.count(1)
@@ -289,11 +290,14 @@ class Dispatcher:
     # ------------------------------------------------------------------ time
     def tick(self) -> None:
         now = self.now()
-        for rec in list(self.tasks.values()):
-            if rec.state is TaskState.BIDDING and rec.closes <= now:
+        for tid in sorted(self._open):
+            rec = self.tasks[tid]
+            if rec.closes <= now:
                 self._close(rec)
             elif rec.state is TaskState.BIDDING and rec.closes == math.inf and rec.next_call <= now:
                 self._call(rec)
+            if rec.state.final or (rec.closes == math.inf and rec.state is not TaskState.BIDDING):
+                self._open.discard(tid)
         if now >= self._next_reassign:
             self._next_reassign = now + self.reassign_period
             self._reassign()
@@ -321,6 +325,7 @@ class Dispatcher:
             return
         now = self.now()
         rec.closes = now + self.window
+        self._open.add(rec.task.id)
         exclude = sorted(a for a in self.robots if a not in called)
         self.send(
             DispatchMsg(
@@ -361,6 +366,7 @@ class Dispatcher:
             self._finish(rec, TaskState.FAILED, Refusal.NO_BIDS.value, f"no robot bid in {rec.rounds} call(s)")
         else:
             rec.next_call = self.now() + self.retry
+            self._open.add(rec.task.id)
             self._status(rec, f"no bids in round {rec.round}; calling again in {self.retry:g} s")
 
     def _award(self, rec: TaskRecord, agent: str, index: int) -> None:
@@ -464,6 +470,10 @@ class Dispatcher:
 
     def _set(self, rec: TaskRecord, state: TaskState, robot: str, reason: str, text: str) -> None:
         rec.state, rec.robot, rec.reason = state, robot, reason
+        if state is TaskState.BIDDING:
+            self._open.add(rec.task.id)
+        elif state.final:
+            self._open.discard(rec.task.id)
         self._status(rec, text)
 
     def _finish(self, rec: TaskRecord, state: TaskState, reason: str, text: str) -> None:
