@@ -45,6 +45,7 @@ CLASS_MODULES: dict[str, str] = {
     "ViewAgent": "agents.scenarios.mixed.agents",
     "DispatcherAgent": "agents.dispatch.agent",
     "FleetAgent": "agents.dispatch.agent",
+    "PatrolAgent": "agents.dispatch.patrol",
 }
 
 #: modules that scenario files named before the scenarios moved to ``agents.scenarios`` -> the package

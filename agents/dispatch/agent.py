@@ -106,7 +106,6 @@ class DispatcherAgent(Agent):
         map: str = "",  # noqa: A002 - the scenario argument's name
         robot_radius: float = 0.25,
         startup_timeout: float = 60.0,
-        **_ignored,
     ):
         super().__init__(agent_id, period=period, robot=robot)
         self.policy = ChargePolicy(float(threshold), float(target), finishing, bool(charging))
