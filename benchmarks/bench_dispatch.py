@@ -57,15 +57,13 @@ class StandIn(FleetWorker, Agent):
 
     async def created(self) -> None:
         self.start_worker()
-        self.subscribe(DispatchMsg.SERVICE, self._note)
 
-    def _note(self, msg) -> None:
-        b = msg.body
-        now = time.time()
-        if b.get("op") == "call":
-            self.log["reply_by"][(b["task_id"], b.get("round", 0))] = b.get("reply_by", 0.0)
-        elif b.get("op") == "award" and b.get("to") == self.id:
-            self.log["awards"].append((b["task_id"], b.get("round", 0), self.id, now))
+    def _on_dispatch(self, msg, m: DispatchMsg) -> None:
+        if m.op == "call":
+            self.log["reply_by"][(m.task_id, m.round)] = m.reply_by
+        elif m.op == "award" and m.to == self.id:
+            self.log["awards"].append((m.task_id, m.round, self.id, time.time()))
+        super()._on_dispatch(msg, m)
 
     def _fleet(self, body) -> None:
         if body.op == "bid":
@@ -191,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robots", type=int, default=50)
     ap.add_argument("--tasks", type=int, default=1000)
-    ap.add_argument("--rate", type=float, default=50.0, help="tasks submitted per second (default 50)")
+    ap.add_argument("--rate", type=float, default=10.0, help="tasks submitted per second (default 10)")
     ap.add_argument("--window", type=float, default=2.0, help="bidding window, s (default 2, Open-RMF's)")
     ap.add_argument("--compress", type=float, default=20.0, help="stand-ins drive this many times faster than 0.5 m/s")
     ap.add_argument("--warmup", type=int, default=20, help="first tasks left out of the latency figures")

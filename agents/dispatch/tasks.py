@@ -110,8 +110,8 @@ def _point(args: dict, name: str, where: str) -> tuple[float, float]:
 def _number(args: dict, name: str, where: str, default: float | None, lo: float, hi: float = math.inf) -> float:
     v = args.get(name, default)
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
-        rng = f"from {lo:g} to {hi:g}" if math.isfinite(hi) else f">= {lo:g}"
-        raise TaskRefused(Refusal.BAD_FIELD, f"{where}: '{name}' must be a number {rng}, got {v!r}")
+        rng = f" from {lo:g} to {hi:g}" if math.isfinite(hi) else f" >= {lo:g}" if math.isfinite(lo) else ""
+        raise TaskRefused(Refusal.BAD_FIELD, f"{where}: '{name}' must be a number{rng}, got {v!r}")
     return float(v)
 
 

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from agents.dispatch.patrol import PatrolAgent, revisit_gaps
+from rsal.msgs import RpcError
 from tests.conftest import ROOT, SPEEDUP, rsal_cmd, wait_until
 
 SCENARIO = str(ROOT / "deploy" / "scenarios" / "patrol.yaml")
@@ -62,7 +63,10 @@ def test_patrol_two_robots_one_charger(procs, port, fabric_factory):
 
     def sample() -> bool:
         t = sim.latest.t if sim.latest is not None else None
-        p = [sim.get_pose(r) for r in ("r0", "r1")]
+        try:
+            p = [sim.get_pose(r) for r in ("r0", "r1")]
+        except RpcError:  # the run ended and stopped the simulator
+            return not run.alive()
         if t is not None:
             times.append(t)
             track.append([(q.x, q.y) for q in p])
@@ -75,6 +79,7 @@ def test_patrol_two_robots_one_charger(procs, port, fabric_factory):
 
     wait_until(sample, 900, "the patrol run to end", interval=0.3)
     out = run.output()
+    print(out[-3000:])
     assert run.p.returncode == 0, out[-3000:]
     pts = np.array([p for r in ROUTES for p in r])
     gaps = revisit_gaps(np.array(times), np.array(track), pts, radius=0.7)
