@@ -177,8 +177,11 @@ def run(args, charging: bool) -> dict:
             if b.points:
                 tx, ty = b.points[0]
                 dist = math.hypot(tx - x, ty - y)
-                if dist < 0.25:
+                if dist < 0.25 and (b.active.kind != "charge" or bat.fraction >= float(b.active.args["target"])):
                     b.points.pop(0)
+                    world.set_velocity(b.name, 0.0, 0.0)
+                    continue
+                if dist < 0.25:  # on the dock: hold the place while charging (pushed off: drive back)
                     world.set_velocity(b.name, 0.0, 0.0)
                     continue
                 err = math.atan2(ty - y, tx - x) - yaw

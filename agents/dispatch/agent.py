@@ -242,6 +242,7 @@ class FleetWorker:
         self.dispatcher = ""  # the agent whose calls it answers (the first that awards it anything)
         self.done: list[str] = []  # tasks it performed, in order
         self._wake: asyncio.Event | None = None
+        self._doing: asyncio.Future | None = None
         self._warned: set = set()
         self._next_status = -math.inf
 
@@ -257,6 +258,9 @@ class FleetWorker:
 
     async def perform(self, task: Task) -> str:
         raise NotImplementedError
+
+    async def abandon(self, task: Task) -> None:
+        """The dispatcher took back ``task`` while it was under way (cancelled): stop doing it."""
 
     # ------------------------------------------------------------------ messages
     def start_worker(self) -> None:
@@ -298,6 +302,8 @@ class FleetWorker:
             self._wake.set()
         elif m.op == "revoke":
             self.queue = [t for t in self.queue if t.id != m.task_id]
+            if self.active is not None and self.active.id == m.task_id and self._doing is not None:
+                self._doing.cancel()  # cancelled while under way: stop it, report nothing
 
     def _fleet(self, body: FleetMsg) -> None:
         if self.host is not None and self.state == "running":  # type: ignore[attr-defined]
@@ -354,10 +360,15 @@ class FleetWorker:
                 continue
             task = self.active = self.queue.pop(0)
             self._fleet(FleetMsg("progress", task_id=task.id, state="active"))
+            self._doing = asyncio.ensure_future(self.perform(task))
             try:
-                reason = await self.perform(task)
+                reason = await self._doing
             except asyncio.CancelledError:
-                raise
+                if not self._doing.cancelled() or self.state != "running":  # type: ignore[attr-defined]
+                    raise  # the worker itself is stopped
+                self.active = None
+                await self.abandon(task)
+                continue
             except Exception as e:
                 log.exception("%s: task %s failed", self.id, task.id)  # type: ignore[attr-defined]
                 reason = f"{type(e).__name__}: {e}"
@@ -440,6 +451,9 @@ class FleetAgent(FleetWorker, NavAgent):
     async def killed(self) -> None:
         self.stop_worker()
         await NavAgent.killed(self)
+
+    async def abandon(self, task: Task) -> None:
+        await self.stop_robot()
 
     async def perform(self, task: Task) -> str:
         """Do ``task``; returns ``""`` when done, else why not."""

@@ -81,7 +81,8 @@ async def _run(args: argparse.Namespace) -> int:
             task = {"id": tid, "kind": args.kind, "args": dict(args.arg or []), "robot": args.robot or ""}
             me.publish(TaskRequest.SERVICE, TaskRequest("submit", task=task))
         while True:
-            left = deadline - loop.time() if not args.follow else None
+            follow = getattr(args, "follow", False)
+            left = deadline - loop.time() if not follow else None
             try:
                 _, st = await wait_for(got.get(), left if left is None or left > 0 else 0.01)
             except TimeoutError:
@@ -94,7 +95,7 @@ async def _run(args: argparse.Namespace) -> int:
             print(_line(st), flush=True)
             if args.op == "cancel" and state is TaskState.CANCELLED:
                 return 0
-            if args.op == "submit" and (not args.follow or state.final):
+            if args.op == "submit" and (not follow or state.final):
                 return 0 if state is not TaskState.FAILED else 1
 
 

@@ -10,10 +10,13 @@ poses (``--truth``) at the moment a task is reported done:
 2. task A is won by r0 (the nearer robot) and done with r0 truly at its goal; r0 is then below the
    20 % threshold and the dispatcher sends it to the charger: r0 truly docks and its battery rises
    to the 90 % target before it is given work again;
-3. task B, submitted while r0 charges, goes to r1; its agent is killed (SIGKILL) once B is active
-   and r1's base is stopped (``rsal estop``): the dispatcher sees the liveliness token go, re-bids B
+3. task B, submitted while r0 charges, goes to r1; once B is active r1 breaks down (its base's
+   emergency stop latched) and its agent is killed (SIGKILL): the dispatcher sees the liveliness
+   token go, re-bids B
    and r0 does it after charging -- done by r0, truly at B's goal, r1 not; every task done exactly
-   once.
+   once;
+4. a task assigned directly to f0 is cancelled; ``rsal task list`` shows every task's final state, and
+   cancelling an unknown task is refused in one line.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import pytest
 
 from agents.runtime import Agent, AgentHost
 from agents.verdict import ARRIVE_TOLERANCE
+from rsal.estop import estop
 from rsal.transport import TransportArgs
 from tests.conftest import MAPS, ROOT, SPEEDUP, LoopThread, rsal_cmd, wait_until
 from tests.truth import Truth
@@ -121,9 +125,8 @@ def test_dispatch_bids_charging_and_rebid_after_a_killed_robot(procs, port, fabr
         assert ok.returncode == 0, ok.stderr
         wait_until(lambda: watcher.reached("B", "active") is not None, 120, "task B active")
         assert watcher.reached("B", "active")[0]["robot"] == "f1"
-        fleet["r1"].kill()
-        stop = subprocess.run(rsal_cmd("estop", "r1", "--connect", ep), cwd=ROOT, capture_output=True, timeout=60)
-        assert stop.returncode == 0, stop.stderr
+        assert estop(fab.session, "r1", timeout=10.0).confirmed  # r1 breaks down where it is ...
+        fleet["r1"].kill()  # ... and its agent dies with it
         wait_until(lambda: watcher.reached(charge, "done") is not None, 400, "r0's charge done")
         body, poses = watcher.reached(charge, "done")
         assert _dist(poses["r0"], DOCK) < 0.6 and power0.fraction >= 0.89, (poses, power0.fraction)
@@ -135,7 +138,19 @@ def test_dispatch_bids_charging_and_rebid_after_a_killed_robot(procs, port, fabr
             assert sum(b["state"] == "done" for b, _ in watcher.states(tid)) == 1
         b_states = [b["state"] for b, _ in watcher.states("B")]
         assert b_states.index("bidding", b_states.index("active")) > 0  # re-bid after f1 went
+
+        # 4. a task directly assigned to f0 and cancelled; the list shows every task's state
+        ok = _task(ep, "submit", "go_to", "--id", "C", "--robot", "f0", "--arg", "x=0", "--arg", "y=-3")
+        assert ok.returncode == 0 and "f0" in ok.stdout, ok.stderr
+        gone = _task(ep, "cancel", "C")
+        assert gone.returncode == 0 and "cancelled" in gone.stdout, gone.stderr
+        rows = {line.split()[0]: line.split()[2] for line in _task(ep, "list").stdout.splitlines()}
+        assert rows["A"] == rows["B"] == rows[charge] == "done" and rows["C"] == "cancelled", rows
+        missing = _task(ep, "cancel", "nope")
+        assert missing.returncode == 1 and "not_found" in missing.stderr
     finally:
+        for b, poses in list(watcher.seen):  # shown when the test fails
+            print(b["task_id"], b["state"], b["robot"], b["reason"], b["text"], poses)
         lt.run(host.stop())
         lt.close()
         truth.close()
