@@ -7,7 +7,9 @@ every change of a task on ``task_state``. A robot agent whose liveliness token (
 goes is lost: its tasks are re-bid. Only the message's sender, checked against its key by
 :mod:`agents.services`, can bid for itself or move its own task on.
 
-:class:`FleetAgent` is a :class:`agents.navigation.NavAgent` that works for the dispatcher: it
+:class:`FleetWorker` is the robot side for any agent class (bids, queue, status, work; a task the
+dispatcher takes back while under way is cancelled and ``abandon``-ed, a killed agent abandons its
+task). :class:`FleetAgent` is a :class:`agents.navigation.NavAgent` that works for the dispatcher: it
 reports its pose, battery (its ``power:0``; -1 without a battery model) and queue on ``fleet``
 every ``status_every`` seconds, bids for every call with :func:`agents.dispatch.bidder.plan_bid`
 (straight-line travel at ``speed``), and performs its queue in order through its planner: ``go_to``
