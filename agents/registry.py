@@ -45,6 +45,9 @@ CLASS_MODULES: dict[str, str] = {
     "ThesisSwarmMonitor": "agents.scenarios.swarm.thesis",
     "DispersionAgent": "agents.scenarios.distribution.agents",
     "ViewAgent": "agents.scenarios.mixed.agents",
+    "DispatcherAgent": "agents.dispatch.agent",
+    "FleetAgent": "agents.dispatch.agent",
+    "PatrolAgent": "agents.dispatch.patrol",
 }
 
 #: modules that scenario files named before the scenarios moved to ``agents.scenarios`` -> the package
