@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any, ClassVar
 
+from rsal.errors import RsalError
 from rsal.msgs import MessageError, get_bool, get_float, get_int, get_str
 
 __all__ = [
@@ -89,7 +90,7 @@ class Refusal(StrEnum):
     ROBOT_FAILED = "robot_failed"
 
 
-class TaskRefused(ValueError):
+class TaskRefused(RsalError, ValueError):
     """A request the dispatcher does not take: ``reason`` (a :class:`Refusal`) and one line."""
 
     def __init__(self, reason: Refusal, text: str):
