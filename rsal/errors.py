@@ -21,7 +21,7 @@ category, the class also derives from it, so ``except ValueError`` still works::
     ├── _Refusal                                agents.hostd: a request the host daemon refuses (private)
     ├── RemoteError (ValueError)                agents.remote: a launch on a machine's daemon that could not be made
     ├── AgentClassError (LookupError)           agents.registry: no such agent class
-    ├── TaskRefused (ValueError)                agents.dispatch.tasks: a task the dispatcher does not take (typed reason)
+    ├── TaskRefused (ValueError)                agents.dispatch.tasks: a task the dispatcher refuses (typed reason)
     ├── ApiError (ValueError)                   agents.control.api: a bad request to the control center
     ├── SecureError (ValueError)                rsal.secure: a fleet folder or identity that cannot be made
     ├── RecordingError (ValueError)             rsal.record: a recording that cannot be written or read
