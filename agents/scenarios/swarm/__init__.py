@@ -4,6 +4,7 @@
   broadcasting, accounting what it receives), on the host's shared :class:`agents.hub.RobotHub`;
 - :mod:`.monitor`: :class:`SwarmMonitor`, the verdict from the simulation's ground truth;
 - :mod:`.metrics`: delivery and latency figures (:class:`LatencyHistogram`);
+- :mod:`.delivery`: delivery within a neighbourhood radius on ground truth (:class:`NeighbourhoodDelivery`);
 - :mod:`.messages`: the ``swarm_stats`` service;
 - :mod:`.world`: :func:`crowd_world`, the Stage world of a crowd (``maps/swarm.world``).
 
@@ -11,6 +12,7 @@ Notes: ``docs/scenarios/swarm.md``; scenario file ``deploy/scenarios/swarm.yaml`
 """
 
 from .agents import Disperse, SwarmAgent, SwarmPioneer, away_from
+from .delivery import Delivery, NeighbourhoodDelivery, expand_ranges
 from .messages import STATS_SERVICE
 from .metrics import LATENCY_EDGES, LatencyHistogram, latency_bin, sequence
 from .monitor import SwarmMonitor
@@ -18,6 +20,8 @@ from .world import crowd_world, write_crowd_world
 
 __all__ = [
     "LATENCY_EDGES",
+    "Delivery",
+    "NeighbourhoodDelivery",
     "STATS_SERVICE",
     "Disperse",
     "LatencyHistogram",
@@ -26,6 +30,7 @@ __all__ = [
     "SwarmPioneer",
     "away_from",
     "crowd_world",
+    "expand_ranges",
     "latency_bin",
     "sequence",
     "write_crowd_world",

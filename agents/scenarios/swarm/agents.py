@@ -20,6 +20,14 @@ every robot's behaviour cycle in turn instead of a thread per robot, and one Zen
 ``send_position`` whose messages are decoded once, put once on the host's blackboard and accounted
 for each agent on the loop. ``shared=False`` gives an agent its own subscription and blackboard.
 The run's judge is :class:`.monitor.SwarmMonitor`, its world :func:`.world.crowd_world`.
+
+With ``neighbourhood`` R > 0 (issue 17's neighbourhood-scoped broadcasts, the thesis's
+"information-hiding", 5.3) an agent publishes in the cell of its pose
+(``svc/send_position/<cell>/<sender>``, :mod:`agents.cells`) and the host's hub listens only to the
+cells within R plus a margin of its robots (:meth:`agents.hub.RobotHub.listen_near`); a message is
+accounted only for the agents whose own cells hold the sender's cell, and each agent reports the
+sequence numbers it received per sender as ranges (``ranges`` in ``swarm_stats``), which the monitor
+checks against the ground truth (every receiver within R of the sender at send time).
 """
 
 from __future__ import annotations
@@ -33,6 +41,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from agents.cells import cell_of
+from agents.cells import margin as cell_margin
 from agents.classes import RobotAgent
 from agents.hub import RobotHub
 from agents.registry import agent_class
@@ -101,12 +111,15 @@ class SwarmPioneer(Pioneer):
         super().update()
 
 
-def away_from(me: Position, others: Sequence[Position], radius: float) -> float | None:
-    """The heading (rad) away from the neighbours within ``radius`` m, each pushing with 1/d;
-    None when none is that close."""
-    if not others:
+def away_from(me: Position, others: Sequence[Position] | np.ndarray, radius: float) -> float | None:
+    """The heading (rad) away from the neighbours (poses, or an (n, 2) array of positions) within
+    ``radius`` m, each pushing with 1/d; None when none is that close."""
+    if len(others) == 0:
         return None
-    xy = np.array([(o.x, o.y) for o in others], dtype=float)
+    if isinstance(others, np.ndarray):
+        xy = others.reshape(-1, 2)
+    else:
+        xy = np.array([(o.x, o.y) for o in others], dtype=float)
     d = np.array([me.x, me.y]) - xy
     r2 = np.einsum("ij,ij->i", d, d)
     near = (r2 < radius * radius) & (r2 > 1e-6)
@@ -133,6 +146,12 @@ class SwarmAgent(RobotAgent):
     m (:class:`Disperse`). ``stats_every`` is the period of its ``swarm_stats`` messages (0: none);
     ``board_timeout`` how long a pose stays on the board; ``side`` the wall to follow; ``shared``
     false gives the agent its own ``send_position`` subscription instead of the host's shared one.
+
+    ``neighbourhood`` R (m; 0, the default: all-to-all) scopes the broadcasts: the agent publishes
+    in the cell of its pose on a grid of ``cell_size`` m (default R) and hears the cells within
+    R + ``margin`` of its robot (default :func:`agents.cells.margin` of ``max_speed`` m/s over one
+    ``report_every``), re-watched every ``report_every`` seconds by the host's hub; it needs the
+    shared subscription, and every agent of a swarm the same R and cell size.
     """
 
     capabilities = ("send_position", STATS_SERVICE)
@@ -153,6 +172,10 @@ class SwarmAgent(RobotAgent):
         simulation: bool = True,
         pose: Sequence[float] | None = None,
         disperse_radius: float = 4.0,
+        neighbourhood: float = 0.0,
+        cell_size: float = 0.0,
+        margin: float | None = None,
+        max_speed: float = 0.5,
     ):
         super().__init__(
             agent_id,
@@ -173,6 +196,19 @@ class SwarmAgent(RobotAgent):
         self.side = side
         self.shared = bool(shared)
         self.disperse_radius = float(disperse_radius)
+        for name, v in (("neighbourhood", neighbourhood), ("cell_size", cell_size), ("max_speed", max_speed)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
+                raise ValueError(f"agent {agent_id}: {name} {v!r} must be a number of metres (per second) >= 0")
+        self.neighbourhood = float(neighbourhood)
+        self.cell_size = float(cell_size) or self.neighbourhood
+        if margin is not None and (isinstance(margin, bool) or not isinstance(margin, (int, float)) or margin < 0):
+            raise ValueError(f"agent {agent_id}: margin {margin!r} must be a number of metres >= 0")
+        self.margin = cell_margin(max_speed, self.report_every) if margin is None else float(margin)
+        if self.neighbourhood and not self.shared:
+            raise ValueError(f"agent {agent_id}: a neighbourhood needs the host's shared subscription (shared: true)")
+        #: sender id -> the sequence numbers received, as flat [first0, last0, first1, last1, ...]
+        self.ranges: dict[str, list[int]] = {}
+        self.since: float | None = None  # wall time its reception began (neighbourhood: its cells watched)
         self._board = Board()  # its own, when it has its own subscription
         self.broadcasting = True
         #: sender id -> [first sequence seen, last sequence seen, messages received]
@@ -200,6 +236,16 @@ class SwarmAgent(RobotAgent):
         if seq is None:
             self.unnumbered += 1
             return
+        if self.neighbourhood:
+            r = self.ranges.get(sender)
+            if r is None:
+                self.ranges[sender] = [seq, seq]
+            elif seq == r[-1] + 1:
+                r[-1] = seq
+            elif seq > r[-1]:
+                r += (seq, seq)
+            else:
+                _insert(r, seq)
         s = self.senders.get(sender)
         if s is None:
             self.senders[sender] = [seq, seq, 1]
@@ -228,9 +274,15 @@ class SwarmAgent(RobotAgent):
         return got, want
 
     def stats(self) -> dict:
-        """The figures of the ``swarm_stats`` service."""
+        """The figures of the ``swarm_stats`` service (with a neighbourhood also ``ranges``:
+        sender -> flat sequence ranges received, ``since`` and ``t``: wall times its reception
+        began and of these figures)."""
         got, want = self.delivery()
+        extra = {}
+        if self.neighbourhood:
+            extra = {"since": self.since, "t": time.time(), "ranges": {k: list(v) for k, v in self.ranges.items()}}
         return {
+            **extra,
             "robot": self.robot,
             "sent": self.sent,
             "received": got,
@@ -259,7 +311,8 @@ class SwarmAgent(RobotAgent):
             self._hub = None
             raise
         self.configure(self.pioneer)
-        self._hub.add_robot(self.robot, self.pioneer)
+        self._hub.add_robot(self.robot, self.pioneer)  # neighbourhood: its cells are watched from now on
+        self.since = time.time()
         now = clock().now()
         # Spread the broadcasts of a crowd started at once over the reporting period.
         self._next_report = now + random.Random(self.id).uniform(0.0, self.report_every)
@@ -269,8 +322,17 @@ class SwarmAgent(RobotAgent):
         """Attach to the host's :class:`agents.hub.RobotHub` and, when ``shared``, to its
         ``send_position`` subscription (:func:`_account_shared` accounts each message for us)."""
         self._hub = RobotHub.attach(self._require_host(), self, period=self.period, board_timeout=self.board_timeout)
-        if self.shared:
-            self._hub.listen(_account_shared)
+        try:
+            if self.neighbourhood:
+                self._hub.listen_near(
+                    self.neighbourhood, self.cell_size, self.margin, self.report_every, _account_shared
+                )
+            elif self.shared:
+                self._hub.listen(_account_shared)
+        except ValueError as e:
+            self._hub.detach(self)
+            self._hub = None
+            raise ValueError(f"agent {self.id}: {e}") from None
         return self._hub
 
     def _build_shared(self, hub: RobotHub) -> Pioneer:  # a worker thread
@@ -339,9 +401,15 @@ class SwarmAgent(RobotAgent):
             msg = self.pose_message() if self.broadcasting else None
             if msg is not None and self.frame == "map" and self.pioneer is not None:
                 me = Position(msg.x, msg.y, msg.yaw)
-                self.pioneer.behaviour.heading = away_from(me, list(self.positions().values()), self.disperse_radius)
+                if self.shared and self._hub is not None:  # the host's latest poses, as arrays
+                    r = min(self.disperse_radius, self.neighbourhood or self.disperse_radius)
+                    others = self._hub.near(msg.x, msg.y, r, exclude=self.robot)
+                else:
+                    others = list(self.positions().values())
+                self.pioneer.behaviour.heading = away_from(me, others, self.disperse_radius)
             if msg is not None:
-                self.publish(SendPosition.SERVICE, msg, conversation=f"p{self.sent}")
+                cell = cell_of(msg.x, msg.y, self.cell_size) if self.neighbourhood else None
+                self.publish(SendPosition.SERVICE, msg, conversation=f"p{self.sent}", cell=cell)
                 self.sent += 1
         if self.stats_every > 0 and now >= self._next_stats:
             self._next_stats = max(self._next_stats + self.stats_every, now)
@@ -365,12 +433,31 @@ class SwarmAgent(RobotAgent):
         )
 
 
+def _insert(r: list[int], seq: int) -> None:
+    """Put ``seq`` into the flat sorted ranges ``r`` (a late or reordered message; rare)."""
+    for k in range(0, len(r), 2):
+        if r[k] <= seq <= r[k + 1]:
+            return
+        if seq < r[k]:
+            if seq == r[k] - 1:
+                r[k] = seq
+            elif k and seq == r[k - 1] + 1:
+                r[k - 1] = seq
+            else:
+                r[k:k] = [seq, seq]
+            if k and r[k - 1] + 1 >= r[k]:  # two ranges now touch: join them
+                r[k - 1 : k + 1] = []
+            return
+    r += (seq, seq)
+
+
 def _account_shared(hub: RobotHub, msg: Message, now: float) -> None:
     """The hub's ``send_position`` listener: the sequence number and latency bin of a message are
-    worked out once and accounted by every swarm agent of the host that shares the subscription."""
+    worked out once and accounted by every swarm agent of the host that shares the subscription
+    (with a neighbourhood: every agent whose cells hold the message's cell)."""
     lat = max(0.0, now - msg.time)
     seq = sequence(msg.conversation)
     i = latency_bin(lat)
-    for a in hub.agents.values():
+    for a in hub.receivers(msg) if hub.radius else hub.agents.values():
         if isinstance(a, SwarmAgent) and a.shared and a.id != msg.sender:
             a._account(msg.sender, seq, i, lat)
