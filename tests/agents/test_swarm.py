@@ -253,3 +253,62 @@ def test_hundred_robots_sixty_seconds(procs, sim_time, tmp_path):
     assert sum(d > 1.0 for d in r["moved"]) >= 80
     assert r["spread"][1] > r["spread"][0] + 0.5, f"the crowd must spread out: {r['spread']}"
     assert v.ok, v.text
+
+
+# ---------------------------------------------------------------------------- neighbourhood
+def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, sim_time, tmp_path):
+    """16 robots 2.5 m apart (gps: their position2d is the true pose), neighbourhood 3 m in cells
+    of 1.5 m: the monitor's ground-truth verdict has 100 % delivery within the radius; no message
+    reached a receiver farther than the reach of its cells; some broadcasts were out of every
+    cell's reach (the scoping works) and robots crossed cell borders."""
+    from agents.cells import cell_of
+
+    n, radius, cell, duration = 16, 3.0, 1.5, 20.0
+    world = write_crowd_world(tmp_path / "crowd16.world", n, spacing=2.5, localization="gps")
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    sim = procs(rsal_cmd("sim", str(world), "--listen", ep, "--no-map", "--speedup", SPEEDUP))
+    wait_until(lambda: "[sim]" in sim.output() or not sim.alive(), 60, "the simulator's start line")
+    assert sim.alive(), sim.output()
+
+    async def run():
+        async with AgentHost.connect(TransportArgs(connect=[ep])) as host:
+            await asyncio.to_thread(sim_time, host.session)
+            agents = [
+                SwarmAgent(f"swarm{i}", robot=f"r{i}", startup_timeout=120, neighbourhood=radius, cell_size=cell)
+                for i in range(n)
+            ]
+            mon = SwarmMonitor(
+                "monitor", robots=n, duration=duration, startup_timeout=60, max_p99_ms=1000, neighbourhood=radius
+            )
+            await host.start(mon)  # listening before the first broadcast
+            await asyncio.gather(*(host.start(a) for a in agents))
+            await _until(lambda: mon.verdict is not None, duration * 4 + 120, "the monitor's verdict")
+            return mon, agents, agents[0]._hub.rewatches, agents[0].margin
+
+    mon, agents, rewatches, margin = asyncio.run(run())
+    v = mon.verdict
+    print(f"\nneighbourhood swarm n={n} r={radius} cell={cell}: {v.text}; rewatches={rewatches}")
+    assert v.ok and f"delivery within {radius:g} m 100.0 %" in v.text, v.text
+    d = mon.delivery
+    r = d.result(mon.stats)
+    assert r.expected == r.received > 100 and r.monitor_missed == 0
+    reach = radius + margin + math.sqrt(2) * cell + 0.3  # a receiver's cells reach no farther (0.3: sampling)
+    ranges = {a.id: a.ranges for a in agents}
+    index = {f"r{i}": i for i in range(n)}
+    out_of_reach = 0
+    for sender, robot, seq, t in d.broadcasts():
+        xy = d.positions_at(t)
+        if xy is None:
+            continue
+        for a in agents:
+            if a.id == sender:
+                continue
+            dist = float(np.hypot(*(xy[index[a.robot]] - xy[index[robot]])))
+            got = any(lo <= seq <= hi for lo, hi in zip(*[iter(ranges[a.id].get(sender, []))] * 2, strict=True))
+            if dist > reach:
+                out_of_reach += 1
+                assert not got, f"{a.id} got {sender}'s broadcast {seq} from {dist:.1f} m (reach {reach:.1f} m)"
+    assert out_of_reach > 100, "the crowd must be wider than a neighbourhood for the test to mean anything"
+    first, last = d.positions_at(d._truth_t[0]), d.positions_at(d._truth_t[-1])
+    crossed = sum(cell_of(*first[i], cell) != cell_of(*last[i], cell) for i in range(n))
+    assert crossed >= 4 and rewatches > 5, (crossed, rewatches)

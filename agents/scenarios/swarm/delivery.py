@@ -103,6 +103,22 @@ class NeighbourhoodDelivery:
     def nsent(self) -> int:
         return len(self._t)
 
+    def broadcasts(self) -> list[tuple[str, str, int, float]]:
+        """Every broadcast seen: (sender agent id, its robot, sequence number, wall time seen)."""
+        names = {c: s for s, c in self._senders.items()}
+        return [
+            (names[c], self.robots[i], q, t) for c, i, q, t in zip(self._sid, self._rob, self._seq, self._t, strict=True)
+        ]
+
+    def positions_at(self, t: float) -> np.ndarray | None:
+        """(n, 2) true positions at wall time ``t``, interpolated between samples; None outside them."""
+        T = self._truth_t
+        if len(T) < 2 or not T[0] <= t <= T[-1]:
+            return None
+        k = min(int(np.searchsorted(T, t, side="right")) - 1, len(T) - 2)
+        w = (t - T[k]) / (T[k + 1] - T[k])
+        return self._truth_xy[k] + w * (self._truth_xy[k + 1] - self._truth_xy[k])
+
     def result(self, reports: Mapping[str, Mapping], max_missing: int = 5) -> Delivery:
         """Judge the broadcasts seen so far against ``reports`` (agent id -> its latest
         ``swarm_stats``: ``robot``, ``since``, ``t``, ``ranges``)."""
