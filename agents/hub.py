@@ -120,8 +120,10 @@ class RobotHub:
         if listener is not None and listener not in self._listeners:
             self._listeners.append(listener)
         if self._cells is not None:
-            raise ValueError("this host's agents listen in a neighbourhood; give all of them the same "
-                             "neighbourhood radius (0: all-to-all)")
+            raise ValueError(
+                "this host's agents listen in a neighbourhood; give all of them the same "
+                "neighbourhood radius (0: all-to-all)"
+            )
         if self._sub is None:
             self._sub = self.host.services.subscribe(SendPosition.SERVICE, self._on_position, owner="robot-hub")
 
@@ -138,8 +140,10 @@ class RobotHub:
                 f"{refresh!r} must be positive (margin may be 0)"
             )
         if self._sub is not None:
-            raise ValueError("this host's agents already listen to every send_position (all-to-all); give all "
-                             "of them the same neighbourhood radius")
+            raise ValueError(
+                "this host's agents already listen to every send_position (all-to-all); give all "
+                "of them the same neighbourhood radius"
+            )
         if self._cells is not None and (radius, cell_size) != (self.radius, self.cell_size):
             raise ValueError(
                 f"this host's agents listen within {self.radius:g} m in cells of {self.cell_size:g} m; give all of "

@@ -22,8 +22,8 @@ judge cannot vouch for them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -107,7 +107,8 @@ class NeighbourhoodDelivery:
         """Every broadcast seen: (sender agent id, its robot, sequence number, wall time seen)."""
         names = {c: s for s, c in self._senders.items()}
         return [
-            (names[c], self.robots[i], q, t) for c, i, q, t in zip(self._sid, self._rob, self._seq, self._t, strict=True)
+            (names[c], self.robots[i], q, t)
+            for c, i, q, t in zip(self._sid, self._rob, self._seq, self._t, strict=True)
         ]
 
     def positions_at(self, t: float) -> np.ndarray | None:

@@ -195,8 +195,10 @@ class SwarmMonitor(Agent):
         s0 = self.spread[0][1] if self.spread else math.nan
         s1 = self.spread[-1][1] if self.spread else math.nan
         scope = f" within {self.neighbourhood:g} m" if nd is not None else ""
-        judged = f"delivery{scope} {delivery:.1f} % ({got}/{want})" if final or nd is None else (
-            f"{self.delivery.nsent} broadcasts seen"
+        judged = (
+            f"delivery{scope} {delivery:.1f} % ({got}/{want})"
+            if final or nd is None
+            else (f"{self.delivery.nsent} broadcasts seen")
         )
         text = (
             f"{n} robots {elapsed:.0f} s: {'no overlap' if not self.overlaps else f'{self.overlaps} overlap(s)'}, "
