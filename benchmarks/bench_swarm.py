@@ -119,10 +119,21 @@ async def _host(args) -> dict:
 
         for a in agents:  # measure latency over the window only
             a.latency = LatencyHistogram()
+        prof = None
+        if args.profile:  # the host loop's thread over the measured window (cProfile)
+            import cProfile
+
+            prof = cProfile.Profile()
+            prof.enable()
         s0 = snapshot()
         sim_cpu0 = _cpu_seconds(args.sim_pid) if args.sim_pid else float("nan")
         await asyncio.sleep(args.seconds)
         s1 = snapshot()
+        if prof is not None:
+            prof.disable()
+            out = f"{args.profile}.{args.form}.{n}.prof"
+            prof.dump_stats(out)
+            print(f"profile of the host loop: {out}", file=sys.stderr, flush=True)
         sim_cpu1 = _cpu_seconds(args.sim_pid) if args.sim_pid else float("nan")
         hist = LatencyHistogram()
         for a in agents:
@@ -206,6 +217,8 @@ def _free_port() -> int:
 def _run_host(n: int, mode: str, ep: str, args, sim_pid: int = 0, form: str = "all") -> dict:
     cmd = [sys.executable, __file__, "--role", "host", "--mode", mode, "--robots", str(n), "--connect", ep]
     cmd += ["--form", form, "--neighbourhood", str(args.neighbourhood), "--cell-size", str(args.cell_size)]
+    if args.profile:
+        cmd += ["--profile", args.profile]
     cmd += ["--seconds", str(args.seconds), "--warmup", str(args.warmup), "--sim-pid", str(sim_pid)]
     p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.seconds + args.warmup + 600, cwd=ROOT)
     for line in p.stdout.splitlines():
@@ -283,6 +296,7 @@ def main() -> None:
         "--cell-size", type=float, default=0.0, help="cell side (m) of the neighbourhood form (default: the radius)"
     )
     ap.add_argument("--all-max", type=int, default=10**9, help="run the all-to-all form only up to this many robots")
+    ap.add_argument("--profile", default="", help="cProfile the agent host's loop into PREFIX.<form>.<n>.prof")
     ap.add_argument("--form", choices=["all", "near"], default="all", help=argparse.SUPPRESS)
     ap.add_argument("--role", choices=["main", "host"], default="main", help=argparse.SUPPRESS)
     ap.add_argument("--mode", choices=["robots", "bare"], default="robots", help=argparse.SUPPRESS)

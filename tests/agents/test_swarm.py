@@ -134,11 +134,17 @@ def test_constructor_errors_are_clear():
 
 def test_crowd_world_is_the_checked_in_swarm_world_and_loads():
     assert (MAPS / "swarm.world").read_text() == crowd_world(100)
+    assert (MAPS / "swarm_gps.world").read_text() == crowd_world(100, localization="gps")
+    assert (MAPS / "swarm1000.world").read_text() == crowd_world(1000, localization="gps")
+    gps = load_world(str(MAPS / "swarm_gps.world"))
+    assert {m.localization for m in gps.models if m.name.startswith("r")} == {"gps"}
     spec = load_world(str(MAPS / "swarm.world"))
     names = [m.name for m in spec.models if m.name.startswith("r")]
     assert len(names) == 100
     with pytest.raises(ValueError, match="do not fit"):
         crowd_world(2000)
+    with pytest.raises(ValueError, match="localization"):
+        crowd_world(4, localization="amcl")
 
 
 # ---------------------------------------------------------------------------- integration

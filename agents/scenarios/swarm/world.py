@@ -44,6 +44,11 @@ def crowd_world(
         "# agents.scenarios.swarm.crowd_world: the 128 m arena, robots on a square grid around its centre,",
         f"# {spacing:g} m apart, random headings (seed {seed}). Each is a Pioneer 2DX with its 8-sonar ring",
         "# (the light sensor model: no laser). Stage 4 syntax; original to this project.",
+        *(
+            ['# localization "gps": each position2d reports its true pose (the neighbourhood form\'s cells).']
+            if localization == "gps"
+            else []
+        ),
         "",
         'include "pioneer.inc"',
         'include "map.inc"',
