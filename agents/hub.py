@@ -94,6 +94,8 @@ class RobotHub:
         self.agent_cells: dict[str, frozenset[str]] = {}  # agent id -> the cells it listens to
         self._by_cell: dict[str, list[Agent]] = {}  # cell -> the agents listening to it
         self.rewatches = 0
+        #: called (no arguments) just before the agents' cells change: to account what came under the old ones
+        self.before_rewatch: list[Callable[[], None]] = []
         # the latest pose received per robot, as arrays (near())
         self._index: dict[str, int] = {}
         self._xy = np.zeros((0, 2))
@@ -163,6 +165,8 @@ class RobotHub:
     def rewatch(self) -> set[str]:
         """Re-compute every agent's cells from its robot's latest pose and watch their union (new
         cells are declared before the old ones go); returns the union."""
+        for fn in self.before_rewatch:
+            fn()
         by_cell: dict[str, list[Agent]] = {}
         union: set[str] = set()
         reach = self.radius + self.margin
@@ -191,6 +195,8 @@ class RobotHub:
         if m is None or self._cells is None:
             return
         cells = frozenset(cells_near(m.pose[0], m.pose[1], self.radius + self.margin, self.cell_size))
+        for fn in self.before_rewatch:
+            fn()
         for aid, a in self.agents.items():
             if getattr(a, "robot", None) == robot:
                 self.agent_cells[aid] = cells

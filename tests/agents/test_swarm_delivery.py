@@ -150,3 +150,37 @@ def test_monitor_verdict_within_the_radius():
     v = m.judge(10.0)
     assert not v.ok and "delivery within 2 m 50.0 % (1/2)" in v.text and "('s1', 's0', 0, 1.0)" in v.text
     assert "broadcasts seen" in m.judge(5.0, final=False).text
+
+
+def test_ledger_hands_each_agent_the_messages_of_its_cells_in_one_batch():
+    from types import SimpleNamespace
+
+    from agents.cells import cell_of
+    from agents.scenarios.swarm.ledger import NearLedger, latency_bins
+    from agents.scenarios.swarm.metrics import latency_bin
+
+    lat = np.array([0.0, 1e-6, 2e-5, 0.004, 0.05, 3.0, 1e3])
+    assert latency_bins(lat).tolist() == [latency_bin(x) for x in lat]
+    a0 = SwarmAgent("n0", robot="q0", neighbourhood=2.0)
+    a1 = SwarmAgent("n1", robot="q1", neighbourhood=2.0)
+    c_left, c_right = cell_of(0.5, 0.5, 2.0), cell_of(2.5, 0.5, 2.0)
+    hub = SimpleNamespace(cell_size=2.0, _by_cell={c_left: [a0, a1], c_right: [a1]})
+    ledger = NearLedger(hub)
+    now = time.time()
+
+    def put(sender: str, seq: int, x: float) -> None:
+        m = Message("send_position", sender, f"p{seq}", now - 0.004, SendPosition(sender, x, 0.5, 0.0))
+        ledger.on_message(hub, m, now)
+
+    for seq in range(3):
+        put("n0", seq, 0.5)  # in the left cell: n1 hears it; n0 not its own
+        put("n9", seq, 2.5)  # in the right cell: n1 only
+    put("n8", 0, 9.0)  # in no agent's cells
+    assert a1.received == 0  # nothing before the flush
+    ledger.flush()
+    assert a0.ranges == {} and a0.received == 0
+    assert a1.ranges == {"n0": [0, 2], "n9": [0, 2]} and a1.received == 6
+    assert a1.latency.n == 6 and a1.latency.quantile(0.5) == pytest.approx(0.004, rel=0.26)
+    put("n9", 4, 2.5)  # seq 3 lost
+    ledger.flush()
+    assert a1.ranges["n9"] == [0, 2, 4, 4]

@@ -25,7 +25,8 @@ With ``neighbourhood`` R > 0 (issue 17's neighbourhood-scoped broadcasts, the th
 "information-hiding", 5.3) an agent publishes in the cell of its pose
 (``svc/send_position/<cell>/<sender>``, :mod:`agents.cells`) and the host's hub listens only to the
 cells within R plus a margin of its robots (:meth:`agents.hub.RobotHub.listen_near`); a message is
-accounted only for the agents whose own cells hold the sender's cell, and each agent reports the
+accounted only for the agents whose own cells hold the sender's cell, in batches (:mod:`.ledger`),
+and each agent reports the
 sequence numbers it received per sender as ranges (``ranges`` in ``swarm_stats``), which the monitor
 checks against the ground truth (every receiver within R of the sender at send time).
 """
@@ -53,6 +54,7 @@ from rsal.data import Board, BoardObject, Position, normalize_angle
 from rsal.msgs import RpcError
 from rsal.robot import Pioneer, RobotError
 
+from .ledger import NearLedger, Received
 from .messages import STATS_SERVICE
 from .metrics import LatencyHistogram, latency_bin, sequence
 
@@ -206,8 +208,9 @@ class SwarmAgent(RobotAgent):
         self.margin = cell_margin(max_speed, self.report_every) if margin is None else float(margin)
         if self.neighbourhood and not self.shared:
             raise ValueError(f"agent {agent_id}: a neighbourhood needs the host's shared subscription (shared: true)")
-        #: sender id -> the sequence numbers received, as flat [first0, last0, first1, last1, ...]
-        self.ranges: dict[str, list[int]] = {}
+        #: neighbourhood: the (sender, sequence number) pairs received (:mod:`.ledger`)
+        self.got = Received()
+        self._ledger: NearLedger | None = None
         self.since: float | None = None  # wall time its reception began (neighbourhood: its cells watched)
         self._board = Board()  # its own, when it has its own subscription
         self.broadcasting = True
@@ -237,15 +240,8 @@ class SwarmAgent(RobotAgent):
             self.unnumbered += 1
             return
         if self.neighbourhood:
-            r = self.ranges.get(sender)
-            if r is None:
-                self.ranges[sender] = [seq, seq]
-            elif seq == r[-1] + 1:
-                r[-1] = seq
-            elif seq > r[-1]:
-                r += (seq, seq)
-            else:
-                _insert(r, seq)
+            self.got.add(sender, seq)
+            return
         s = self.senders.get(sender)
         if s is None:
             self.senders[sender] = [seq, seq, 1]
@@ -255,6 +251,17 @@ class SwarmAgent(RobotAgent):
         elif seq < s[0]:
             s[0] = seq
         s[2] += 1
+
+    def take(self, keys: np.ndarray, bins: np.ndarray, lat: np.ndarray) -> None:
+        """Account a batch of neighbourhood messages (:meth:`.ledger.NearLedger.flush`)."""
+        self.got.add_keys(keys)
+        self.received += len(keys)
+        self.latency.add_many(bins, lat)
+
+    @property
+    def ranges(self) -> dict[str, list[int]]:
+        """Neighbourhood: sender id -> the sequence numbers received, flat ``[first0, last0, ...]``."""
+        return self.got.ranges()
 
     @property
     def board(self) -> Board:
@@ -280,7 +287,8 @@ class SwarmAgent(RobotAgent):
         got, want = self.delivery()
         extra = {}
         if self.neighbourhood:
-            extra = {"since": self.since, "t": time.time(), "ranges": {k: list(v) for k, v in self.ranges.items()}}
+            t = self._ledger.flushed_at if self._ledger is not None else time.time()  # complete up to t
+            extra = {"since": self.since, "t": t, "ranges": self.ranges}
         return {
             **extra,
             "robot": self.robot,
@@ -324,8 +332,9 @@ class SwarmAgent(RobotAgent):
         self._hub = RobotHub.attach(self._require_host(), self, period=self.period, board_timeout=self.board_timeout)
         try:
             if self.neighbourhood:
+                self._ledger = _ledger(self._hub)
                 self._hub.listen_near(
-                    self.neighbourhood, self.cell_size, self.margin, self.report_every, _account_shared
+                    self.neighbourhood, self.cell_size, self.margin, self.report_every, self._ledger.on_message
                 )
             elif self.shared:
                 self._hub.listen(_account_shared)
@@ -433,31 +442,24 @@ class SwarmAgent(RobotAgent):
         )
 
 
-def _insert(r: list[int], seq: int) -> None:
-    """Put ``seq`` into the flat sorted ranges ``r`` (a late or reordered message; rare)."""
-    for k in range(0, len(r), 2):
-        if r[k] <= seq <= r[k + 1]:
-            return
-        if seq < r[k]:
-            if seq == r[k] - 1:
-                r[k] = seq
-            elif k and seq == r[k - 1] + 1:
-                r[k - 1] = seq
-            else:
-                r[k:k] = [seq, seq]
-            if k and r[k - 1] + 1 >= r[k]:  # two ranges now touch: join them
-                r[k - 1 : k + 1] = []
-            return
-    r += (seq, seq)
+def _ledger(hub: RobotHub) -> NearLedger:
+    """The hub's :class:`.ledger.NearLedger` (made on first use; flushed before each re-watch)."""
+    for fn in hub.before_rewatch:
+        owner = getattr(fn, "__self__", None)
+        if isinstance(owner, NearLedger):
+            return owner
+    ledger = NearLedger(hub)
+    hub.before_rewatch.append(ledger.flush)
+    return ledger
 
 
 def _account_shared(hub: RobotHub, msg: Message, now: float) -> None:
     """The hub's ``send_position`` listener: the sequence number and latency bin of a message are
     worked out once and accounted by every swarm agent of the host that shares the subscription
-    (with a neighbourhood: every agent whose cells hold the message's cell)."""
+    (a neighbourhood's messages go through the hub's :class:`.ledger.NearLedger` instead)."""
     lat = max(0.0, now - msg.time)
     seq = sequence(msg.conversation)
     i = latency_bin(lat)
-    for a in hub.receivers(msg) if hub.radius else hub.agents.values():
+    for a in hub.agents.values():
         if isinstance(a, SwarmAgent) and a.shared and a.id != msg.sender:
             a._account(msg.sender, seq, i, lat)
