@@ -12,7 +12,11 @@ Figures: published and delivered messages per second, delivery ratio, latency p5
 (receive wall time - the message's ``time``, log bins: an upper bound within 26 %), the
 simulator's real-time factor (simulated / wall time, from its ``simulation`` device), the share
 of the agents' 100 ms control period the shared control loop is busy, control cycles that
-overran, and the CPU use of both processes. *Real time* means the simulator keeps >= 0.95 of real
+overran, and the CPU use of both processes; ``host_cores_rt`` (the host's CPU seconds per control
+cycle x 10; an upper bound when cycles overran, as the messages' share then counts more than once)
+and ``sim_cores_rt`` (the simulator's CPU seconds per simulated second) estimate the cores each
+process needs for real time from CPU time, which holds on a machine loaded by other work where the
+wall-time figures do not. *Real time* means the simulator keeps >= 0.95 of real
 time and fewer than 5 % of control cycles overrun.
 
 Baseline in the same run (``--baseline``, on by default): the same N agents in one host with no
@@ -197,6 +201,11 @@ async def _host(args) -> dict:
             "overrun_pct": round(100.0 * (s1["overruns"] - s0["overruns"]) / cycles, 2) if not bare else None,
             "host_cpu": round((s1["cpu"] - s0["cpu"]) / wall, 2),
             "sim_cpu": round((sim_cpu1 - sim_cpu0) / wall, 2) if args.sim_pid else None,
+            # CPU per unit of work (load-independent): cores each process needs for real time
+            "host_cores_rt": round((s1["cpu"] - s0["cpu"]) / cycles * 10, 2) if not bare else None,
+            "sim_cores_rt": round((sim_cpu1 - sim_cpu0) / max(1e-9, s1["sim_t"] - s0["sim_t"]), 2)
+            if args.sim_pid
+            else None,
             **extra,
         }
 

@@ -167,16 +167,22 @@ class NeighbourhoodDelivery:
         ps, pr = np.concatenate(pair_send), np.concatenate(pair_recv)
         S = max(1, len(self._senders))
         want = ((pr.astype(np.int64) * S + sid[ps]) << _SEQ_BITS) + seq[ps]
-        # the received keys, from each receiver's ranges of the senders it owes
-        got_parts = []
+        # the received keys, from each receiver's ranges (all expanded at once)
+        base: list[int] = []
+        lo_hi: list[int] = []
         for j, aid in agent_of.items():
             for sender, flat in reports[aid].get("ranges", {}).items():
                 c = self._senders.get(sender)
-                if c is None:
+                if c is None or len(flat) % 2:
                     continue
-                got_parts.append(((j * S + c) << _SEQ_BITS) + expand_ranges(flat))
-        got = np.unique(np.concatenate(got_parts)) if got_parts else np.zeros(0, dtype=np.int64)
-        pos = np.searchsorted(got, want)
+                base.extend([(j * S + c) << _SEQ_BITS] * (len(flat) // 2))
+                lo_hi.extend(flat)
+        r = np.asarray(lo_hi, dtype=np.int64).reshape(-1, 2)
+        r += np.asarray(base, dtype=np.int64)[:, None]
+        got = np.sort(expand_ranges(r.ravel()))
+        order = np.argsort(want)
+        pos = np.empty(len(want), dtype=np.int64)
+        pos[order] = np.searchsorted(got, want[order])  # sorted needles: one pass
         ok = np.zeros(len(want), dtype=bool)
         inside = pos < len(got)
         ok[inside] = got[pos[inside]] == want[inside]
@@ -191,12 +197,14 @@ class NeighbourhoodDelivery:
 
 
 def _gaps(sid: np.ndarray, seq: np.ndarray) -> int:
-    """Sequence numbers missing between each sender's first and last one seen."""
-    missed = 0
+    """Sequence numbers missing between each sender's first and last one seen (vectorised)."""
+    if not len(sid):
+        return 0
     order = np.lexsort((seq, sid))
     sid, seq = sid[order], seq[order]
-    cuts = np.nonzero(np.diff(sid))[0] + 1
-    for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(sid)], strict=True):
-        u = np.unique(seq[a:b])
-        missed += int(u[-1] - u[0] + 1 - len(u))
-    return missed
+    keep = np.r_[True, (np.diff(sid) != 0) | (np.diff(seq) != 0)]  # distinct (sender, seq)
+    sid, seq = sid[keep], seq[keep]
+    starts = np.r_[0, np.nonzero(np.diff(sid))[0] + 1]
+    ends = np.r_[starts[1:], len(sid)]
+    span = seq[ends - 1] - seq[starts] + 1
+    return int((span - (ends - starts)).sum())
