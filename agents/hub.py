@@ -212,6 +212,10 @@ class RobotHub:
             next_t = max(next_t + self.refresh, clock().now())
             await clock().asleep_until(next_t)
 
+    def agents_in(self, cell: str) -> list[Agent]:
+        """The agents of the host whose cells (as last watched) hold ``cell``."""
+        return self._by_cell.get(cell, [])
+
     def receivers(self, msg: Message) -> list[Agent]:
         """The agents of the host whose cells hold the cell ``msg`` was published in (its pose's)."""
         b = msg.body

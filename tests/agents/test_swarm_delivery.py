@@ -164,7 +164,8 @@ def test_ledger_hands_each_agent_the_messages_of_its_cells_in_one_batch():
     a0 = SwarmAgent("n0", robot="q0", neighbourhood=2.0)
     a1 = SwarmAgent("n1", robot="q1", neighbourhood=2.0)
     c_left, c_right = cell_of(0.5, 0.5, 2.0), cell_of(2.5, 0.5, 2.0)
-    hub = SimpleNamespace(cell_size=2.0, _by_cell={c_left: [a0, a1], c_right: [a1]})
+    by_cell = {c_left: [a0, a1], c_right: [a1]}
+    hub = SimpleNamespace(cell_size=2.0, agents_in=lambda c: by_cell.get(c, []))
     ledger = NearLedger(hub)
     now = time.time()
 

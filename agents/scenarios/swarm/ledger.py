@@ -133,7 +133,7 @@ class NearLedger:
             by_cell.setdefault(c, []).append(i)
         per_agent: dict[int, tuple[object, list[np.ndarray]]] = {}
         for c, idx in by_cell.items():
-            agents = self.hub._by_cell.get(c)
+            agents = self.hub.agents_in(c)
             if not agents:
                 continue
             arr = np.asarray(idx)
