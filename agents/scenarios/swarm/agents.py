@@ -133,6 +133,58 @@ def away_from(me: Position, others: Sequence[Position] | np.ndarray, radius: flo
     return math.atan2(v[1], v[0])
 
 
+def away_headings(me: np.ndarray, others: np.ndarray, radius: np.ndarray, own: np.ndarray) -> np.ndarray:
+    """:func:`away_from` for many robots at once: row i of ``me`` (n, 2) pushed away from the rows
+    of ``others`` (m, 2; NaN rows ignored) within ``radius[i]`` m, except row ``own[i]`` (its own
+    broadcast; -1: none). NaN where no neighbour is that close."""
+    from scipy.spatial import cKDTree
+
+    out = np.full(len(me), np.nan)
+    ok = ~np.isnan(others).any(axis=1)
+    if not len(me) or not ok.any():
+        return out
+    rows = np.nonzero(ok)[0]
+    pairs = cKDTree(me).sparse_distance_matrix(cKDTree(others[rows]), float(np.max(radius)), output_type="ndarray")
+    i, j, dist = pairs["i"], rows[pairs["j"]], pairs["v"]
+    keep = (dist < radius[i]) & (dist > 1e-3) & (j != own[i])
+    i, j, dist = i[keep], j[keep], dist[keep]
+    push = np.zeros((len(me), 2))
+    np.add.at(push, i, (me[i] - others[j]) / (dist * dist)[:, None])
+    has = np.zeros(len(me), dtype=bool)
+    has[i] = True
+    has &= np.any(push != 0.0, axis=1)
+    out[has] = np.arctan2(push[has, 1], push[has, 0])
+    return out
+
+
+class _Headings:
+    """The disperse headings of a neighbourhood hub's robots, all at once before each re-watch
+    (:func:`away_headings` on the positions the host received), instead of one numpy call per
+    agent and broadcast."""
+
+    def __init__(self, hub: RobotHub):
+        self.hub = hub
+        self.of: dict[str, float | None] = {}
+
+    def update(self) -> None:
+        agents = [
+            a
+            for a in self.hub.agents.values()
+            if isinstance(a, SwarmAgent)
+            and a.pioneer is not None
+            and a.frame == "map"
+            and a.pioneer.position2d.latest is not None
+        ]
+        if not agents:
+            return
+        xy, index = self.hub.received_positions()
+        me = np.array([a.pioneer.position2d.latest.pose[:2] for a in agents], dtype=float)
+        radius = np.array([min(a.disperse_radius, a.neighbourhood or a.disperse_radius) for a in agents])
+        own = np.array([index.get(a.robot, -1) for a in agents])
+        h = away_headings(me, xy, radius, own)
+        self.of = {a.robot: (None if np.isnan(v) else float(v)) for a, v in zip(agents, h.tolist(), strict=True)}
+
+
 # ---------------------------------------------------------------------------- agents
 @agent_class("SwarmAgent")
 class SwarmAgent(RobotAgent):
@@ -211,6 +263,7 @@ class SwarmAgent(RobotAgent):
         #: neighbourhood: the (sender, sequence number) pairs received (:mod:`.ledger`)
         self.got = Received()
         self._ledger: NearLedger | None = None
+        self._headings: _Headings | None = None
         self.since: float | None = None  # wall time its reception began (neighbourhood: its cells watched)
         self._board = Board()  # its own, when it has its own subscription
         self.broadcasting = True
@@ -332,7 +385,7 @@ class SwarmAgent(RobotAgent):
         self._hub = RobotHub.attach(self._require_host(), self, period=self.period, board_timeout=self.board_timeout)
         try:
             if self.neighbourhood:
-                self._ledger = _ledger(self._hub)
+                self._ledger, self._headings = _near_hooks(self._hub)
                 self._hub.listen_near(
                     self.neighbourhood, self.cell_size, self.margin, self.report_every, self._ledger.on_message
                 )
@@ -408,7 +461,9 @@ class SwarmAgent(RobotAgent):
         if now >= self._next_report:
             self._next_report = max(self._next_report + self.report_every, now)
             msg = self.pose_message() if self.broadcasting else None
-            if msg is not None and self.frame == "map" and self.pioneer is not None:
+            if msg is not None and self.frame == "map" and self.pioneer is not None and self._headings is not None:
+                self.pioneer.behaviour.heading = self._headings.of.get(self.robot)  # the hub's, all at once
+            elif msg is not None and self.frame == "map" and self.pioneer is not None:
                 me = Position(msg.x, msg.y, msg.yaw)
                 if self.shared and self._hub is not None:  # the host's latest poses, as arrays
                     r = min(self.disperse_radius, self.neighbourhood or self.disperse_radius)
@@ -442,15 +497,18 @@ class SwarmAgent(RobotAgent):
         )
 
 
-def _ledger(hub: RobotHub) -> NearLedger:
-    """The hub's :class:`.ledger.NearLedger` (made on first use; flushed before each re-watch)."""
-    for fn in hub.before_rewatch:
-        owner = getattr(fn, "__self__", None)
-        if isinstance(owner, NearLedger):
-            return owner
-    ledger = NearLedger(hub)
-    hub.before_rewatch.append(ledger.flush)
-    return ledger
+def _near_hooks(hub: RobotHub) -> tuple[NearLedger, _Headings]:
+    """The hub's :class:`.ledger.NearLedger` and :class:`_Headings` (made on first use; both run
+    before each re-watch)."""
+    owners = [getattr(fn, "__self__", None) for fn in hub.before_rewatch]
+    found = {type(o): o for o in owners if o is not None}
+    if NearLedger not in found:
+        found[NearLedger] = NearLedger(hub)
+        hub.before_rewatch.append(found[NearLedger].flush)
+    if _Headings not in found:
+        found[_Headings] = _Headings(hub)
+        hub.before_rewatch.append(found[_Headings].update)
+    return found[NearLedger], found[_Headings]
 
 
 def _account_shared(hub: RobotHub, msg: Message, now: float) -> None:
