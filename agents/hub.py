@@ -103,6 +103,8 @@ class RobotHub:
         self.cycles = 0
         self.overruns = 0
         self.busy_s = 0.0
+        self.busy_cpu_s = 0.0  # CPU time of the robots' updates (the loop thread's), load-independent
+        self.updates = 0  # robot updates run
         self.max_cycle_s = 0.0
 
     @classmethod
@@ -285,6 +287,7 @@ class RobotHub:
             robots = list(self.robots.values())
             for k in range(0, len(robots), self.slice_size):
                 t0 = time.perf_counter()
+                c0 = time.thread_time()
                 for r in robots[k : k + self.slice_size]:
                     if r.name not in self.robots:
                         continue  # removed meanwhile
@@ -294,6 +297,8 @@ class RobotHub:
                     except Exception:
                         log.exception("%s: update failed", r.name)
                 busy += time.perf_counter() - t0
+                self.busy_cpu_s += time.thread_time() - c0
+                self.updates += min(self.slice_size, len(robots) - k)
                 await asyncio.sleep(0)
             self.cycles += 1
             self.busy_s += busy  # the robots' updates only, not the messages served in between

@@ -12,9 +12,9 @@ Figures: published and delivered messages per second, delivery ratio, latency p5
 (receive wall time - the message's ``time``, log bins: an upper bound within 26 %), the
 simulator's real-time factor (simulated / wall time, from its ``simulation`` device), the share
 of the agents' 100 ms control period the shared control loop is busy, control cycles that
-overran, and the CPU use of both processes; ``host_cores_rt`` (the host's CPU seconds per control
-cycle x 10; an upper bound when cycles overran, as the messages' share then counts more than once)
-and ``sim_cores_rt`` (the simulator's CPU seconds per simulated second) estimate the cores each
+overran, and the CPU use of both processes; ``update_cpu_us`` is the CPU time of one robot's
+behaviour update, ``host_cores_rt`` N x 10 Hz x that plus the host's other CPU per second (messages),
+and ``sim_cores_rt`` the simulator's CPU seconds per simulated second: they estimate the cores each
 process needs for real time from CPU time, which holds on a machine loaded by other work where the
 wall-time figures do not. *Real time* means the simulator keeps >= 0.95 of real
 time and fewer than 5 % of control cycles overrun.
@@ -119,6 +119,8 @@ async def _host(args) -> dict:
                 "cycles": hub.cycles,
                 "busy": hub.busy_s,
                 "overruns": hub.overruns,
+                "busy_cpu": hub.busy_cpu_s,
+                "updates": hub.updates,
             }
 
         for a in agents:  # measure latency over the window only
@@ -174,6 +176,8 @@ async def _host(args) -> dict:
             got, want = counts()
         wall = s1["t"] - s0["t"]
         cycles = max(1, s1["cycles"] - s0["cycles"])
+        cpu = s1["cpu"] - s0["cpu"]
+        upd_cpu = (s1["busy_cpu"] - s0["busy_cpu"]) / max(1, s1["updates"] - s0["updates"])
         extra = {}
         if near:
             extra = {
@@ -202,7 +206,10 @@ async def _host(args) -> dict:
             "host_cpu": round((s1["cpu"] - s0["cpu"]) / wall, 2),
             "sim_cpu": round((sim_cpu1 - sim_cpu0) / wall, 2) if args.sim_pid else None,
             # CPU per unit of work (load-independent): cores each process needs for real time
-            "host_cores_rt": round((s1["cpu"] - s0["cpu"]) / cycles * 10, 2) if not bare else None,
+            "update_cpu_us": round(1e6 * upd_cpu, 1) if not bare else None,
+            "host_cores_rt": round(n * 10 * upd_cpu + (cpu - (s1["busy_cpu"] - s0["busy_cpu"])) / wall, 2)
+            if not bare
+            else None,
             "sim_cores_rt": round((sim_cpu1 - sim_cpu0) / max(1e-9, s1["sim_t"] - s0["sim_t"]), 2)
             if args.sim_pid
             else None,
