@@ -236,7 +236,9 @@ def _run_host(n: int, mode: str, ep: str, args, sim_pid: int = 0, form: str = "a
     if args.profile:
         cmd += ["--profile", args.profile]
     cmd += ["--seconds", str(args.seconds), "--warmup", str(args.warmup), "--sim-pid", str(sim_pid)]
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.seconds + args.warmup + 600, cwd=ROOT)
+    p = subprocess.run(
+        cmd, capture_output=True, text=True, timeout=args.seconds + args.warmup + args.host_timeout, cwd=ROOT
+    )
     for line in p.stdout.splitlines():
         if line.startswith("RESULT "):
             return json.loads(line[7:])
@@ -312,6 +314,9 @@ def main() -> None:
         "--cell-size", type=float, default=0.0, help="cell side (m) of the neighbourhood form (default: the radius)"
     )
     ap.add_argument("--all-max", type=int, default=10**9, help="run the all-to-all form only up to this many robots")
+    ap.add_argument(
+        "--host-timeout", type=float, default=600.0, help="seconds an agent host may take beyond the run (start-up)"
+    )
     ap.add_argument("--profile", default="", help="cProfile the agent host's loop into PREFIX.<form>.<n>.prof")
     ap.add_argument("--form", choices=["all", "near"], default="all", help=argparse.SUPPRESS)
     ap.add_argument("--role", choices=["main", "host"], default="main", help=argparse.SUPPRESS)
