@@ -120,7 +120,7 @@ def test_disperse_steers_away_from_neighbours_until_a_wall_is_in_sight():
 
 
 def test_away_headings_is_away_from_for_many_robots_at_once():
-    from agents.scenarios.swarm.agents import away_headings
+    from agents.scenarios.swarm import away_headings
 
     rng = np.random.default_rng(5)
     me = rng.uniform(0, 10, (40, 2))

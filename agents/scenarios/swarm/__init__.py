@@ -1,5 +1,7 @@
 """Swarm (thesis 4.2.3): a crowd of wall-following robots that broadcast their positions.
 
+- :mod:`.behaviour`: :class:`Disperse` (the wall-following behaviour with a disperse layer),
+  :func:`away_from`, :func:`away_headings`;
 - :mod:`.agents`: :class:`SwarmAgent` (one robot: wall-following with the :class:`Disperse` layer,
   broadcasting, accounting what it receives), on the host's shared :class:`agents.hub.RobotHub`;
 - :mod:`.monitor`: :class:`SwarmMonitor`, the verdict from the simulation's ground truth;
@@ -11,7 +13,8 @@
 Notes: ``docs/scenarios/swarm.md``; scenario file ``deploy/scenarios/swarm.yaml``.
 """
 
-from .agents import Disperse, SwarmAgent, SwarmPioneer, away_from
+from .agents import SwarmAgent
+from .behaviour import Disperse, SwarmPioneer, away_from, away_headings
 from .delivery import Delivery, NeighbourhoodDelivery, expand_ranges
 from .messages import STATS_SERVICE
 from .metrics import LATENCY_EDGES, LatencyHistogram, latency_bin, sequence
@@ -29,6 +32,7 @@ __all__ = [
     "SwarmMonitor",
     "SwarmPioneer",
     "away_from",
+    "away_headings",
     "crowd_world",
     "expand_ranges",
     "latency_bin",
