@@ -49,7 +49,7 @@ from agents.registry import agent_class
 from agents.services import Message, SendPosition
 from rsal.clock import clock
 from rsal.data import Board, BoardObject, Position
-from rsal.msgs import RpcError
+from rsal.msgs import ErrorCode, RpcError
 from rsal.robot import Pioneer, RobotError
 
 from .behaviour import SwarmPioneer, away_from, away_headings
@@ -322,22 +322,35 @@ class SwarmAgent(RobotAgent):
                             "(is its device server running and reachable?)"
                         ) from None
 
+        def patient(call):
+            """``call()``, again after a pause while the server answers busy (a crowd's start-up
+            fills a simulator's inbox), until the start-up deadline."""
+            pause = 0.1
+            while True:
+                try:
+                    return call()
+                except RpcError as e:
+                    if e.code != ErrorCode.BUSY or time.monotonic() + pause > deadline or self._abort.is_set():
+                        raise
+                time.sleep(pause * random.uniform(1.0, 2.0))
+                pause = min(2.0, 2 * pause)
+
         wait(f"{name}:position2d:0", "position2d:0 device")
         wait(f"{name}:{ranger}:0", f"{ranger}:0 device (laser={self.laser}; does the robot have one?)")
         devs = [hub.node.device(f"{name}:position2d:0"), hub.node.device(f"{name}:{ranger}:0")]
         robot = SwarmPioneer(devs, name=name, period=self.period, laser=self.laser)
         left = max(0.5, deadline - time.monotonic())
         try:
-            devs[1].describe(timeout=min(5.0, left))  # the beam geometry, before the first cycle
+            patient(lambda: devs[1].describe(timeout=min(5.0, left)))  # the beam geometry, before the first cycle
             robot.position2d.wait_for_data(left)
             start = self.start_pose
             if start is None and self.simulation:
                 wait("*:simulation:0", "simulation device (simulation=true; is this a simulated robot?)")
                 sim = hub.node.device(hub.node.matches("*:simulation:0")[0])
-                start = sim.get_pose(name)
+                start = patient(lambda: sim.get_pose(name))
             if start is not None:
                 n = robot.position2d.count
-                robot.position2d.set_odometry(start)
+                patient(lambda: robot.position2d.set_odometry(start))
                 robot.position2d.wait_for_data(max(0.5, deadline - time.monotonic()), newer_than=n + 1)
                 self.frame = "map"
         except (TimeoutError, RobotError, RpcError) as e:
