@@ -13,7 +13,13 @@ a hundred threads contending for the GIL and a hundred decodings of every broadc
   behind a whole cycle (:meth:`add_robot`, :meth:`remove_robot`);
 - one ``send_position`` subscription (:meth:`listen`) whose messages are decoded once, put once on
   the host's blackboard :attr:`RobotHub.board` (every agent of the host receives the same messages)
-  and handed to the listeners once per message, on the loop (SPADE's local delivery short-cut).
+  and handed to the listeners once per message, on the loop (SPADE's local delivery short-cut);
+- or, neighbourhood-scoped (:meth:`listen_near`, :mod:`agents.cells`): one
+  :class:`agents.services.CellSubscription` over the union of the cells within ``radius + margin``
+  of each of its robots, re-watched every ``refresh`` seconds from the robots' own poses; each agent's
+  own cells are kept (:meth:`receivers` names the agents whose cells hold a message's cell), and the
+  latest poses received are also kept as arrays (:meth:`near`: the poses within a distance, one
+  numpy expression instead of a walk over the board).
 
 Use it from an agent's ``created()``::
 
@@ -31,16 +37,20 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from collections.abc import Callable
+
+import numpy as np
 
 from rsal.client import Fabric
 from rsal.clock import clock
 from rsal.data import Board, BoardObject, Position
 from rsal.robot import Robot
 
+from .cells import cell_of, cells_near
 from .runtime import Agent, AgentHost
-from .services import Message, SendPosition, Subscription
+from .services import CellSubscription, Message, SendPosition, Subscription
 
 __all__ = ["DEFAULT_TEMPLATES", "Listener", "RobotHub"]
 
@@ -74,9 +84,27 @@ class RobotHub:
         self._task: asyncio.Task | None = None
         self._sub: Subscription | None = None
         self._listeners: list[Listener] = []
+        # neighbourhood scope (listen_near): radius, cell size, margin (m), refresh period (s)
+        self.radius = 0.0
+        self.cell_size = 0.0
+        self.margin = 0.0
+        self.refresh = 0.5
+        self._cells: CellSubscription | None = None
+        self._watch_task: asyncio.Task | None = None
+        self.agent_cells: dict[str, frozenset[str]] = {}  # agent id -> the cells it listens to
+        self._by_cell: dict[str, list[Agent]] = {}  # cell -> the agents listening to it
+        self.rewatches = 0
+        #: called (no arguments) just before the agents' cells change: to account what came under the old ones
+        self.before_rewatch: list[Callable[[], None]] = []
+        # the latest pose received per robot, as arrays (near())
+        self._index: dict[str, int] = {}
+        self._xy = np.zeros((0, 2))
+        self._stamp = np.zeros(0)
         self.cycles = 0
         self.overruns = 0
         self.busy_s = 0.0
+        self.busy_cpu_s = 0.0  # CPU time of the robots' updates (the loop thread's), load-independent
+        self.updates = 0  # robot updates run
         self.max_cycle_s = 0.0
 
     @classmethod
@@ -95,20 +123,151 @@ class RobotHub:
         on) and call ``listener`` once per message (a listener given twice is called once)."""
         if listener is not None and listener not in self._listeners:
             self._listeners.append(listener)
+        if self._cells is not None:
+            raise ValueError(
+                "this host's agents listen in a neighbourhood; give all of them the same "
+                "neighbourhood radius (0: all-to-all)"
+            )
         if self._sub is None:
             self._sub = self.host.services.subscribe(SendPosition.SERVICE, self._on_position, owner="robot-hub")
+
+    def listen_near(
+        self, radius: float, cell_size: float, margin: float, refresh: float, listener: Listener | None = None
+    ) -> None:
+        """Subscribe to ``send_position`` in the cells (:mod:`agents.cells`, squares of ``cell_size``
+        m) within ``radius + margin`` m of any of the host's robots, re-watched every ``refresh``
+        seconds as they move, and call ``listener`` once per message. Every agent of the host that
+        listens near shares one radius and cell size (the first one asked for)."""
+        if not (radius > 0 and cell_size > 0 and margin >= 0 and refresh > 0):
+            raise ValueError(
+                f"neighbourhood radius {radius!r}, cell size {cell_size!r}, margin {margin!r} and refresh "
+                f"{refresh!r} must be positive (margin may be 0)"
+            )
+        if self._sub is not None:
+            raise ValueError(
+                "this host's agents already listen to every send_position (all-to-all); give all "
+                "of them the same neighbourhood radius"
+            )
+        if self._cells is not None and (radius, cell_size) != (self.radius, self.cell_size):
+            raise ValueError(
+                f"this host's agents listen within {self.radius:g} m in cells of {self.cell_size:g} m; give all of "
+                f"them the same neighbourhood and cell_size (asked: {radius:g} m, {cell_size:g} m)"
+            )
+        if listener is not None and listener not in self._listeners:
+            self._listeners.append(listener)
+        if self._cells is None:
+            self.radius, self.cell_size = float(radius), float(cell_size)
+            self.margin, self.refresh = float(margin), float(refresh)
+            self._cells = self.host.services.subscribe_cells(SendPosition.SERVICE, self._on_position, owner="robot-hub")
+            self._watch_task = self.host.spawn(self._rewatch_loop(), "robot hub cell watch")
+        else:
+            self.margin = max(self.margin, float(margin))
+            self.refresh = min(self.refresh, float(refresh))
+
+    def rewatch(self) -> set[str]:
+        """Re-compute every agent's cells from its robot's latest pose and watch their union (new
+        cells are declared before the old ones go); returns the union."""
+        for fn in self.before_rewatch:
+            fn()
+        by_cell: dict[str, list[Agent]] = {}
+        union: set[str] = set()
+        reach = self.radius + self.margin
+        for aid, a in self.agents.items():
+            robot = self.robots.get(getattr(a, "robot", ""))
+            m = robot.position2d.latest if robot is not None else None
+            if m is None:
+                cells = self.agent_cells.get(aid, frozenset())
+            else:
+                cells = frozenset(cells_near(m.pose[0], m.pose[1], reach, self.cell_size))
+                self.agent_cells[aid] = cells
+            for c in cells:
+                by_cell.setdefault(c, []).append(a)
+            union |= cells
+        self._by_cell = by_cell
+        if self._cells is not None:
+            self._cells.watch(union)
+        self.rewatches += 1
+        return union
+
+    def _watch_new(self, robot: str) -> None:
+        """Watch the cells of the agents of a robot just added, at once (the whole set is re-computed
+        at the next :meth:`rewatch`; one robot at a time keeps a crowd's start-up linear)."""
+        r = self.robots[robot]
+        m = r.position2d.latest
+        if m is None or self._cells is None:
+            return
+        cells = frozenset(cells_near(m.pose[0], m.pose[1], self.radius + self.margin, self.cell_size))
+        for fn in self.before_rewatch:
+            fn()
+        for aid, a in self.agents.items():
+            if getattr(a, "robot", None) == robot:
+                self.agent_cells[aid] = cells
+                for c in cells:
+                    self._by_cell.setdefault(c, []).append(a)
+        if not cells <= self._cells.cells:
+            self._cells.watch(self._cells.cells | cells)
+
+    async def _rewatch_loop(self) -> None:
+        next_t = clock().now()
+        while True:
+            self.rewatch()
+            next_t = max(next_t + self.refresh, clock().now())
+            await clock().asleep_until(next_t)
+
+    def agents_in(self, cell: str) -> list[Agent]:
+        """The agents of the host whose cells (as last watched) hold ``cell``."""
+        return self._by_cell.get(cell, [])
+
+    def receivers(self, msg: Message) -> list[Agent]:
+        """The agents of the host whose cells hold the cell ``msg`` was published in (its pose's)."""
+        b = msg.body
+        return self._by_cell.get(cell_of(b.x, b.y, self.cell_size), [])
+
+    def near(self, x: float, y: float, radius: float, exclude: str = "") -> np.ndarray:
+        """(k, 2) positions of the robots received within ``radius`` m of (x, y) and newer than the
+        board's timeout, without robot ``exclude``."""
+        if not len(self._stamp):
+            return np.zeros((0, 2))
+        d = self._xy - (x, y)
+        ok = np.einsum("ij,ij->i", d, d) <= radius * radius
+        ok &= self._stamp >= time.monotonic() - self.board_timeout
+        i = self._index.get(exclude)
+        if i is not None:
+            ok[i] = False
+        return self._xy[ok]
+
+    def received_positions(self) -> tuple[np.ndarray, dict[str, int]]:
+        """The latest position received of every robot as an (m, 2) array (rows older than the
+        board's timeout are NaN) and the row of each robot id."""
+        xy = self._xy[: len(self._index)].copy()
+        xy[self._stamp[: len(self._index)] < time.monotonic() - self.board_timeout] = np.nan
+        return xy, self._index
+
+    def _remember(self, robot: str, x: float, y: float) -> None:
+        i = self._index.get(robot)
+        if i is None:
+            i = self._index[robot] = len(self._index)
+            if i >= len(self._stamp):
+                grow = max(64, 2 * len(self._stamp))
+                self._xy = np.concatenate([self._xy, np.zeros((grow, 2))])
+                self._stamp = np.concatenate([self._stamp, np.full(grow, -math.inf)])
+        self._xy[i] = (x, y)
+        self._stamp[i] = time.monotonic()
 
     def _on_position(self, msg: Message) -> None:  # the host's loop
         now = time.time()
         b = msg.body
         pose = Position(b.x, b.y, b.yaw)
         self.board.put(b.robot, BoardObject(topic="position", position=pose, timeout=self.board_timeout))
+        self._remember(b.robot, b.x, b.y)
         for fn in self._listeners:
             fn(self, msg, now)
 
     def add_robot(self, name: str, robot: Robot) -> None:
         """Run ``robot.update()`` in the shared control loop from now on (the loop starts with the first)."""
         self.robots[name] = robot
+        if self._cells is not None:
+            self._watch_new(name)
         if self._task is None:
             self._task = self.host.spawn(self._control(), "robot hub control loop")
 
@@ -128,6 +287,7 @@ class RobotHub:
             robots = list(self.robots.values())
             for k in range(0, len(robots), self.slice_size):
                 t0 = time.perf_counter()
+                c0 = time.thread_time()
                 for r in robots[k : k + self.slice_size]:
                     if r.name not in self.robots:
                         continue  # removed meanwhile
@@ -137,6 +297,8 @@ class RobotHub:
                     except Exception:
                         log.exception("%s: update failed", r.name)
                 busy += time.perf_counter() - t0
+                self.busy_cpu_s += time.thread_time() - c0
+                self.updates += min(self.slice_size, len(robots) - k)
                 await asyncio.sleep(0)
             self.cycles += 1
             self.busy_s += busy  # the robots' updates only, not the messages served in between
@@ -151,12 +313,17 @@ class RobotHub:
     def detach(self, agent: Agent) -> None:
         """Detach ``agent``; the last one closes the hub (loop, subscription, node, fabric)."""
         self.agents.pop(agent.id, None)
+        self.agent_cells.pop(agent.id, None)
         if self.agents:
             return
         if self._task is not None:
             self._task.cancel()
         if self._sub is not None:
             self._sub.close()
+        if self._watch_task is not None:
+            self._watch_task.cancel()
+        if self._cells is not None:
+            self._cells.close()
         self.node.close()
         self.fabric.close()
         if RobotHub._hubs.get(id(self.host)) is self:

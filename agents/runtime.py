@@ -96,9 +96,12 @@ class Agent:
     def hello(self) -> Hello:
         return Hello(self.id, type(self).__name__, self.robot, tuple(self.capabilities))
 
-    def publish(self, service: str, body: Any, *, conversation: str | None = None) -> str:
-        """Send ``body`` on ``svc/<service>/<self.id>``; returns the conversation id."""
-        return self._require_host().services.publish(service, body, sender=self.id, conversation=conversation)
+    def publish(self, service: str, body: Any, *, conversation: str | None = None, cell: str | None = None) -> str:
+        """Send ``body`` on ``svc/<service>/<self.id>`` (with ``cell``: ``svc/<service>/<cell>/<self.id>``,
+        :mod:`agents.cells`); returns the conversation id."""
+        return self._require_host().services.publish(
+            service, body, sender=self.id, conversation=conversation, cell=cell
+        )
 
     def subscribe(
         self, service: str, callback: Callable[[Message], Awaitable[None] | None], filter: Filter | None = None

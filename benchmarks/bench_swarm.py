@@ -12,14 +12,29 @@ Figures: published and delivered messages per second, delivery ratio, latency p5
 (receive wall time - the message's ``time``, log bins: an upper bound within 26 %), the
 simulator's real-time factor (simulated / wall time, from its ``simulation`` device), the share
 of the agents' 100 ms control period the shared control loop is busy, control cycles that
-overran, and the CPU use of both processes. *Real time* means the simulator keeps >= 0.95 of real
+overran, and the CPU use of both processes; ``update_cpu_us`` is the CPU time of one robot's
+behaviour update, ``host_cores_rt`` N x 10 Hz x that plus the host's other CPU per second (messages),
+and ``sim_cores_rt`` the simulator's CPU seconds per simulated second: they estimate the cores each
+process needs for real time from CPU time, which holds on a machine loaded by other work where the
+wall-time figures do not. *Real time* means the simulator keeps >= 0.95 of real
 time and fewer than 5 % of control cycles overrun.
 
 Baseline in the same run (``--baseline``, on by default): the same N agents in one host with no
 robots and no simulator, broadcasting a fixed pose: the messaging alone.
 
+Neighbourhood form (``--neighbourhood R``, issue 17): each N runs twice on the same crowd, whose
+robots report their true pose (``localization "gps"``): all-to-all (``form=all``, the baseline) and
+with broadcasts scoped to R m (``form=near``: :class:`agents.hub.RobotHub` listens only to the cells
+of ``--cell-size`` m, default R, within R plus a margin of its robots). The near form's delivery is
+judged on ground truth by a :class:`agents.scenarios.swarm.SwarmMonitor` in the host (started
+before the agents, it listens to every cell and samples every robot's true pose twice a second):
+every (receiver, broadcast) pair whose robots were within R at send time
+(:class:`agents.scenarios.swarm.NeighbourhoodDelivery`). ``--all-max`` skips the all-to-all form above
+that many robots.
+
 Output: ``bench=swarm key=value ...`` lines. Usage:
-``python benchmarks/bench_swarm.py --robots 100,200,500 --seconds 30``
+``python benchmarks/bench_swarm.py --robots 100,200,500 --seconds 30``;
+``python benchmarks/bench_swarm.py --robots 100,300,1000 --neighbourhood 5``
 """
 
 from __future__ import annotations
@@ -49,7 +64,7 @@ def _cpu_seconds(pid: int) -> float:
 
 async def _host(args) -> dict:
     from agents.runtime import AgentHost
-    from agents.scenarios.swarm import LatencyHistogram, SwarmAgent
+    from agents.scenarios.swarm import LatencyHistogram, SwarmAgent, SwarmMonitor
     from agents.services import SendPosition
     from rsal.client import Fabric
     from rsal.transport import TransportArgs
@@ -75,9 +90,15 @@ async def _host(args) -> dict:
     bare = args.mode == "bare"
     cls = BareAgent if bare else SwarmAgent
     transport = TransportArgs(listen=[args.connect]) if bare else TransportArgs(connect=[args.connect])
+    near = args.neighbourhood if args.form == "near" else 0.0
     async with AgentHost.connect(transport) as host:
         t0 = time.perf_counter()
-        agents = [cls(f"swarm{i}", robot=f"r{i}", startup_timeout=300, stats_every=0) for i in range(n)]
+        mon = None
+        if near:  # the ground-truth judge, listening to every cell before the first broadcast
+            mon = SwarmMonitor("monitor", robots=n, duration=1e9, neighbourhood=near, startup_timeout=300)
+            await host.start(mon)
+        kw = {"neighbourhood": near, "cell_size": args.cell_size} if near else {}
+        agents = [cls(f"swarm{i}", robot=f"r{i}", startup_timeout=300, stats_every=0, **kw) for i in range(n)]
         await asyncio.gather(*(host.start(a) for a in agents))
         startup = time.perf_counter() - t0
         sim = None
@@ -98,14 +119,27 @@ async def _host(args) -> dict:
                 "cycles": hub.cycles,
                 "busy": hub.busy_s,
                 "overruns": hub.overruns,
+                "busy_cpu": hub.busy_cpu_s,
+                "updates": hub.updates,
             }
 
         for a in agents:  # measure latency over the window only
             a.latency = LatencyHistogram()
+        prof = None
+        if args.profile:  # the host loop's thread over the measured window (cProfile)
+            import cProfile
+
+            prof = cProfile.Profile()
+            prof.enable()
         s0 = snapshot()
         sim_cpu0 = _cpu_seconds(args.sim_pid) if args.sim_pid else float("nan")
         await asyncio.sleep(args.seconds)
         s1 = snapshot()
+        if prof is not None:
+            prof.disable()
+            out = f"{args.profile}.{args.form}.{n}.prof"
+            prof.dump_stats(out)
+            print(f"profile of the host loop: {out}", file=sys.stderr, flush=True)
         sim_cpu1 = _cpu_seconds(args.sim_pid) if args.sim_pid else float("nan")
         hist = LatencyHistogram()
         for a in agents:
@@ -124,18 +158,39 @@ async def _host(args) -> dict:
                         want += c - first
             return got, want
 
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
+        if near:  # ground truth: every receiver within the radius at send time
+            await asyncio.sleep(2.0)  # the last broadcasts in flight, then beyond the monitor's settle time
+            t_j = time.perf_counter()
+            res = mon.delivery.result({a.id: a.stats() for a in agents})
+            got, want = res.received, res.expected
+            judge_s = time.perf_counter() - t_j
+            if res.missing:
+                print(f"missing (receiver, sender, seq, m): {res.missing}", file=sys.stderr, flush=True)
+        else:
+            deadline = time.monotonic() + 20
+            while time.monotonic() < deadline:
+                got, want = counts()
+                if got >= want:
+                    break
+                await asyncio.sleep(0.1)
             got, want = counts()
-            if got >= want:
-                break
-            await asyncio.sleep(0.1)
-        got, want = counts()
         wall = s1["t"] - s0["t"]
         cycles = max(1, s1["cycles"] - s0["cycles"])
+        cpu = s1["cpu"] - s0["cpu"]
+        upd_cpu = (s1["busy_cpu"] - s0["busy_cpu"]) / max(1, s1["updates"] - s0["updates"])
+        extra = {}
+        if near:
+            extra = {
+                "radius": near,
+                "cell": args.cell_size or near,
+                "monitor_missed": res.monitor_missed,
+                "judge_s": round(judge_s, 2),
+                "overlaps": mon.overlaps,
+            }
         return {
             "robots": n,
             "mode": args.mode,
+            "form": "near" if near else "all",
             "startup_s": round(startup, 1),
             "publish_per_s": round((s1["sent"] - s0["sent"]) / wall, 1),
             "deliver_per_s": round((s1["recv"] - s0["recv"]) / wall, 1),
@@ -150,6 +205,15 @@ async def _host(args) -> dict:
             "overrun_pct": round(100.0 * (s1["overruns"] - s0["overruns"]) / cycles, 2) if not bare else None,
             "host_cpu": round((s1["cpu"] - s0["cpu"]) / wall, 2),
             "sim_cpu": round((sim_cpu1 - sim_cpu0) / wall, 2) if args.sim_pid else None,
+            # CPU per unit of work (load-independent): cores each process needs for real time
+            "update_cpu_us": round(1e6 * upd_cpu, 1) if not bare else None,
+            "host_cores_rt": round(n * 10 * upd_cpu + (cpu - (s1["busy_cpu"] - s0["busy_cpu"])) / wall, 2)
+            if not bare
+            else None,
+            "sim_cores_rt": round((sim_cpu1 - sim_cpu0) / max(1e-9, s1["sim_t"] - s0["sim_t"]), 2)
+            if args.sim_pid
+            else None,
+            **extra,
         }
 
 
@@ -166,10 +230,15 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _run_host(n: int, mode: str, ep: str, args, sim_pid: int = 0) -> dict:
+def _run_host(n: int, mode: str, ep: str, args, sim_pid: int = 0, form: str = "all") -> dict:
     cmd = [sys.executable, __file__, "--role", "host", "--mode", mode, "--robots", str(n), "--connect", ep]
+    cmd += ["--form", form, "--neighbourhood", str(args.neighbourhood), "--cell-size", str(args.cell_size)]
+    if args.profile:
+        cmd += ["--profile", args.profile]
     cmd += ["--seconds", str(args.seconds), "--warmup", str(args.warmup), "--sim-pid", str(sim_pid)]
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.seconds + args.warmup + 600, cwd=ROOT)
+    p = subprocess.run(
+        cmd, capture_output=True, text=True, timeout=args.seconds + args.warmup + args.host_timeout, cwd=ROOT
+    )
     for line in p.stdout.splitlines():
         if line.startswith("RESULT "):
             return json.loads(line[7:])
@@ -181,42 +250,51 @@ def _line(r: dict) -> str:
 
 
 def run(args) -> None:
-    from agents.scenarios.swarm.agents import write_crowd_world
-
-    largest = None
+    largest: dict[str, int] = {}
     for n in args.robot_list:
         if args.baseline:
             ep = f"tcp/127.0.0.1:{_free_port()}"
             r = _run_host(n, "bare", ep, args)  # no simulator: the host listens on its own port
             print(_line(r), flush=True)
-        with tempfile.TemporaryDirectory() as tmp:
-            world = write_crowd_world(Path(tmp) / f"crowd{n}.world", n, seed=args.seed)
-            ep = f"tcp/127.0.0.1:{_free_port()}"
-            from rsal.procs import die_with_parent
+        forms = ["all", "near"] if args.neighbourhood else ["all"]
+        if args.neighbourhood and n > args.all_max:
+            forms = ["near"]
+        for form in forms:
+            r = _run_sim_and_host(n, form, args)
+            realtime = (r["rtf"] or 0) >= 0.95 and (r["overrun_pct"] or 0) < 5.0
+            r["realtime"] = realtime
+            print(_line(r), flush=True)
+            if realtime:
+                largest[form] = n
+    for form, n in largest.items():
+        print(f"bench=swarm summary form={form} largest_realtime={n}", flush=True)
 
-            sim = subprocess.Popen(
-                [sys.executable, "-m", "rsal.cli", "sim", str(world), "--listen", ep, "--no-map"],
-                cwd=ROOT,
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
-                start_new_session=True,
-                **die_with_parent(),
-            )
+
+def _run_sim_and_host(n: int, form: str, args) -> dict:
+    from agents.scenarios.swarm import write_crowd_world
+    from rsal.procs import die_with_parent
+
+    with tempfile.TemporaryDirectory() as tmp:
+        loc = "gps" if args.neighbourhood else "odom"  # both forms on the same crowd
+        world = write_crowd_world(Path(tmp) / f"crowd{n}.world", n, seed=args.seed, localization=loc)
+        ep = f"tcp/127.0.0.1:{_free_port()}"
+        sim = subprocess.Popen(
+            [sys.executable, "-m", "rsal.cli", "sim", str(world), "--listen", ep, "--no-map"],
+            cwd=ROOT,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+            **die_with_parent(),
+        )
+        try:
+            return _run_host(n, "robots", ep, args, sim.pid, form)
+        finally:
+            sim.terminate()
             try:
-                r = _run_host(n, "robots", ep, args, sim.pid)
-            finally:
-                sim.terminate()
-                try:
-                    sim.wait(10)
-                except subprocess.TimeoutExpired:
-                    sim.kill()
-                    sim.wait(5)
-        realtime = (r["rtf"] or 0) >= 0.95 and (r["overrun_pct"] or 0) < 5.0
-        r["realtime"] = realtime
-        print(_line(r), flush=True)
-        if realtime:
-            largest = n
-    print(f"bench=swarm summary largest_realtime={largest}", flush=True)
+                sim.wait(10)
+            except subprocess.TimeoutExpired:
+                sim.kill()
+                sim.wait(5)
 
 
 def main() -> None:
@@ -226,6 +304,21 @@ def main() -> None:
     ap.add_argument("--warmup", type=float, default=5.0, help="seconds after start-up before measuring")
     ap.add_argument("--seed", type=int, default=0, help="seed of the crowd's headings")
     ap.add_argument("--no-baseline", dest="baseline", action="store_false", help="skip the messaging baseline")
+    ap.add_argument(
+        "--neighbourhood",
+        type=float,
+        default=0.0,
+        help="radius (m): also run the neighbourhood-scoped form (0: all-to-all only)",
+    )
+    ap.add_argument(
+        "--cell-size", type=float, default=0.0, help="cell side (m) of the neighbourhood form (default: the radius)"
+    )
+    ap.add_argument("--all-max", type=int, default=10**9, help="run the all-to-all form only up to this many robots")
+    ap.add_argument(
+        "--host-timeout", type=float, default=600.0, help="seconds an agent host may take beyond the run (start-up)"
+    )
+    ap.add_argument("--profile", default="", help="cProfile the agent host's loop into PREFIX.<form>.<n>.prof")
+    ap.add_argument("--form", choices=["all", "near"], default="all", help=argparse.SUPPRESS)
     ap.add_argument("--role", choices=["main", "host"], default="main", help=argparse.SUPPRESS)
     ap.add_argument("--mode", choices=["robots", "bare"], default="robots", help=argparse.SUPPRESS)
     ap.add_argument("--connect", default="", help=argparse.SUPPRESS)
@@ -239,6 +332,8 @@ def main() -> None:
         args.robot_list = [int(x) for x in args.robots.split(",") if x.strip()]
     except ValueError:
         sys.exit(f"bench_swarm: --robots {args.robots!r} must be comma-separated integers, e.g. 100,200")
+    if args.neighbourhood < 0 or args.cell_size < 0:
+        sys.exit("bench_swarm: --neighbourhood and --cell-size must be >= 0 metres, e.g. --neighbourhood 5")
     run(args)
 
 

@@ -63,7 +63,7 @@ def main() -> None:
 
     import rerun as rr
 
-    from agents.scenarios.swarm.agents import write_crowd_world
+    from agents.scenarios.swarm import write_crowd_world
     from rsal.msgs import VelocityCmd, encode
     from rsal.transport import TransportArgs, open_session
     from rsal.watch import Watcher, WatchOptions

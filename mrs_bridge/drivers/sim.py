@@ -153,7 +153,7 @@ class SimulationDriver(Driver):
             d.check_timeout()
 
     def ops(self, addr):
-        return ["get_pose", "set_pose", "models", "contacts", "pause", "step", "reset", "remove_model"]
+        return ["get_pose", "get_poses", "set_pose", "models", "contacts", "pause", "step", "reset", "remove_model"]
 
     def geometry(self, addr):
         return {
@@ -169,6 +169,13 @@ class SimulationDriver(Driver):
         try:
             if op == "get_pose":
                 return {"name": get_str(args, "name"), "pose": list(w.get_pose(get_str(args, "name")))}
+            if op == "get_poses":  # many true poses at one simulated instant (a crowd's ground truth)
+                names = args.get("names")
+                if names is None:
+                    names = list(w.robot_names)
+                if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+                    raise RpcError(ErrorCode.BAD_REQUEST, "get_poses: 'names' must be a list of model names")
+                return {"t": w.time, "names": names, "poses": [list(w.get_pose(n)) for n in names]}
             if op == "set_pose":
                 name = get_str(args, "name")
                 x, y, a = get_vec(args, "pose", 3)

@@ -113,3 +113,77 @@ def test_the_control_loop_runs_each_robot_until_removed_and_the_last_detach_clos
     lt.run(host.kill(b.id))
     assert id(host) not in RobotHub._hubs
     wait_until(lambda: hub._task.done(), 5.0, "the control loop ends with the hub")
+
+
+class MovingRobot(CountingRobot):
+    """A robot whose pose the test sets (``position2d.latest.pose``), as the hub reads it."""
+
+    def __init__(self, name: str, x: float, y: float):
+        super().__init__(name)
+        self.calls = 5  # no failing cycle here
+        self.position2d = type("P", (), {})()
+        self.move(x, y)
+
+    def move(self, x: float, y: float) -> None:
+        self.position2d.latest = type("M", (), {"pose": (x, y, 0.0)})()
+
+
+class NearMember(Member):
+    def __init__(self, agent_id: str, robot: str, listener=None):
+        super().__init__(agent_id, listener)
+        self.robot = robot
+
+    async def created(self) -> None:
+        self.hub = RobotHub.attach(self._require_host(), self, period=0.02)
+        self.hub.listen_near(2.0, 2.0, 0.5, 0.05, self.listener)
+
+
+def test_neighbourhood_cells_follow_the_robots_and_reach_only_their_receivers(net):
+    from agents.cells import cell_of, cells_near
+
+    lt, host, other = net
+    heard = []
+    a, b = NearMember("a", "ra", lambda hub, msg, now: heard.append(msg)), NearMember("b", "rb")
+    lt.run(host.start(a))
+    lt.run(host.start(b))
+    hub = a.hub
+    ra, rb = MovingRobot("ra", 0.5, 0.5), MovingRobot("rb", 20.5, 0.5)
+    lt.run(_call(hub.add_robot, "ra", ra))  # watched at once
+    lt.run(_call(hub.add_robot, "rb", rb))
+    assert hub.agent_cells["a"] == frozenset(cells_near(0.5, 0.5, 2.5, 2.0))
+    assert hub._cells.cells == set(cells_near(0.5, 0.5, 2.5, 2.0)) | set(cells_near(20.5, 0.5, 2.5, 2.0))
+    talker = Agent("talker")
+    lt.run(other.start(talker))
+
+    def say(x: float) -> None:
+        talker.publish(SendPosition.SERVICE, SendPosition("rt", x, 0.5, 0.0, "map"), cell=cell_of(x, 0.5, 2.0))
+
+    def arrived(x: float):
+        def check() -> bool:
+            if not any(m.body.x == x for m in heard):
+                say(x)
+            return any(m.body.x == x for m in heard)
+
+        return check
+
+    wait_until(arrived(1.5), 10.0, "a message near ra reaches the hub")
+    near_a = [m for m in heard if m.body.x == 1.5][0]
+    assert hub.receivers(near_a) == [a]
+    assert hub.near(0.5, 0.5, 2.0).tolist() == [[1.5, 0.5]] and len(hub.near(0.5, 0.5, 2.0, exclude="rt")) == 0
+    # a message far from both robots is not even delivered to the host: sent before the ones below
+    # from the same publisher, it would have arrived first
+    for _ in range(5):
+        say(11.5)
+    rb.move(10.5, 0.5)  # rb drives there: within a re-watch period its cells follow
+    wait_until(lambda: "c5_0" in hub.agent_cells["b"], 5.0, "b's cells follow its robot")
+    wait_until(arrived(10.5), 10.0, "a message near rb's new place reaches the hub")
+    assert not any(m.body.x == 11.5 for m in heard)
+    assert hub.receivers([m for m in heard if m.body.x == 10.5][0]) == [b]
+    with pytest.raises(ValueError, match="same neighbourhood"):
+        hub.listen_near(3.0, 2.0, 0.5, 0.05)
+    with pytest.raises(ValueError, match="neighbourhood"):
+        hub.listen()
+
+
+async def _call(fn, *args):
+    return fn(*args)

@@ -135,6 +135,14 @@ def test_malformed_input_never_kills_the_server(procs, port, fabric_factory):
     with pytest.raises(RpcError) as ei:
         sim.rpc("set_pose", name="r0", pose=[0, math.nan, 0])
     assert ei.value.code == ErrorCode.BAD_REQUEST
+    # get_poses: many true poses at one simulated instant; bad names are typed errors
+    every = sim.rpc("get_poses")
+    assert every["names"] == ["r0"] and every["poses"][0] == pytest.approx(sim.rpc("get_pose", name="r0")["pose"])
+    assert sim.rpc("get_poses", names=["r0", "r0"])["poses"][1] == pytest.approx(every["poses"][0], abs=0.5)
+    for bad, code in ((["nobody"], ErrorCode.NOT_FOUND), ("r0", ErrorCode.BAD_REQUEST), ([1], ErrorCode.BAD_REQUEST)):
+        with pytest.raises(RpcError) as ei:
+            sim.rpc("get_poses", names=bad)
+        assert ei.value.code == code, bad
     assert server.alive()
     out = server.output()
     assert "Traceback" not in out

@@ -20,102 +20,74 @@ every robot's behaviour cycle in turn instead of a thread per robot, and one Zen
 ``send_position`` whose messages are decoded once, put once on the host's blackboard and accounted
 for each agent on the loop. ``shared=False`` gives an agent its own subscription and blackboard.
 The run's judge is :class:`.monitor.SwarmMonitor`, its world :func:`.world.crowd_world`.
+
+With ``neighbourhood`` R > 0 (issue 17's neighbourhood-scoped broadcasts, the thesis's
+"information-hiding", 5.3) an agent publishes in the cell of its pose
+(``svc/send_position/<cell>/<sender>``, :mod:`agents.cells`) and the host's hub listens only to the
+cells within R plus a margin of its robots (:meth:`agents.hub.RobotHub.listen_near`); a message is
+accounted only for the agents whose own cells hold the sender's cell, in batches (:mod:`.ledger`),
+and each agent reports the
+sequence numbers it received per sender as ranges (``ranges`` in ``swarm_stats``), which the monitor
+checks against the ground truth (every receiver within R of the sender at send time).
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import random
 import time
 from collections.abc import Sequence
 
 import numpy as np
 
+from agents.cells import cell_of
+from agents.cells import margin as cell_margin
 from agents.classes import RobotAgent
 from agents.hub import RobotHub
 from agents.registry import agent_class
 from agents.services import Message, SendPosition
-from rsal.behaviours import Sectors, Subsumption
 from rsal.clock import clock
-from rsal.data import Board, BoardObject, Position, normalize_angle
-from rsal.msgs import RpcError
+from rsal.data import Board, BoardObject, Position
+from rsal.msgs import ErrorCode, RpcError
 from rsal.robot import Pioneer, RobotError
 
+from .behaviour import SwarmPioneer, away_from, away_headings
+from .ledger import NearLedger, Received
 from .messages import STATS_SERVICE
 from .metrics import LatencyHistogram, latency_bin, sequence
 
-__all__ = ["Disperse", "SwarmAgent", "SwarmPioneer", "away_from"]
+__all__ = ["SwarmAgent"]
 
 log = logging.getLogger(__name__)
 
 
-# ---------------------------------------------------------------------------- behaviour
-class Disperse(Subsumption):
-    """The subsumption behaviour of thesis 3.6.2.4 with one more layer for a crowd in open space.
+class _Headings:
+    """The disperse headings of a neighbourhood hub's robots, all at once before each re-watch
+    (:func:`away_headings` on the positions the host received), instead of one numpy call per
+    agent and broadcast."""
 
-    Plain wall-following curves towards its side while no wall is in sight, which in an open arena
-    keeps a robot circling where it started. Here, while wall-following sees no wall, the robot
-    instead steers to :attr:`heading` (radians, world frame; set from the neighbours' broadcast
-    positions) or, without one, drives straight on, so the crowd spreads out "towards a wall"
-    (thesis fig. 4.7); once a wall is in sight wall-following takes over. Escape and avoid still
-    override it. :attr:`yaw` is the robot's current heading, set every cycle by its robot.
-    """
-
-    def __init__(self, params=None):
-        super().__init__(params)
-        self.heading: float | None = None
-        self.yaw: float = 0.0
-
-    def step(self, s: Sectors, now: float, stalled: bool = False) -> tuple[float, float]:
-        v, w = super().step(s, now, stalled)
-        if self.state != "wallfollow":
-            return v, w
-        p = self.p
-        sign = 1.0 if p.side == "left" else -1.0
-        side_d = s.min_between(60, 120) if sign > 0 else s.min_between(-120, -60)
-        diag = s.min_between(30, 60) if sign > 0 else s.min_between(-60, -30)
-        if min(side_d, diag) <= 2.5 * p.wall_dist:
-            return v, w  # a wall to follow
-        self.state = "disperse"
-        if self.heading is None:
-            return p.cruise_speed, 0.0
-        err = normalize_angle(self.heading - self.yaw)
-        w = max(-p.turn_rate, min(p.turn_rate, 1.5 * err))
-        return p.cruise_speed * (1.0 if abs(err) < 0.8 else 0.4), w
-
-
-class SwarmPioneer(Pioneer):
-    """A :class:`rsal.robot.Pioneer` whose behaviour is :class:`Disperse`: the same cycle, with the
-    robot's heading handed to the behaviour before each step."""
-
-    def __init__(self, devices, **kw):
-        super().__init__(devices, **kw)
-        self.behaviour = Disperse(self.behaviour.p)
+    def __init__(self, hub: RobotHub):
+        self.hub = hub
+        self.of: dict[str, float | None] = {}
 
     def update(self) -> None:
-        m = self.position2d.latest
-        if m is not None:
-            self.behaviour.yaw = m.pose[2]
-        super().update()
-
-
-def away_from(me: Position, others: Sequence[Position], radius: float) -> float | None:
-    """The heading (rad) away from the neighbours within ``radius`` m, each pushing with 1/d;
-    None when none is that close."""
-    if not others:
-        return None
-    xy = np.array([(o.x, o.y) for o in others], dtype=float)
-    d = np.array([me.x, me.y]) - xy
-    r2 = np.einsum("ij,ij->i", d, d)
-    near = (r2 < radius * radius) & (r2 > 1e-6)
-    if not near.any():
-        return None
-    v = (d[near] / r2[near, None]).sum(axis=0)
-    if not np.any(v):
-        return None
-    return math.atan2(v[1], v[0])
+        agents = [
+            a
+            for a in self.hub.agents.values()
+            if isinstance(a, SwarmAgent)
+            and a.pioneer is not None
+            and a.frame == "map"
+            and a.pioneer.position2d.latest is not None
+        ]
+        if not agents:
+            return
+        xy, index = self.hub.received_positions()
+        me = np.array([a.pioneer.position2d.latest.pose[:2] for a in agents], dtype=float)
+        radius = np.array([min(a.disperse_radius, a.neighbourhood or a.disperse_radius) for a in agents])
+        own = np.array([index.get(a.robot, -1) for a in agents])
+        h = away_headings(me, xy, radius, own)
+        self.of = {a.robot: (None if np.isnan(v) else float(v)) for a, v in zip(agents, h.tolist(), strict=True)}
 
 
 # ---------------------------------------------------------------------------- agents
@@ -133,6 +105,12 @@ class SwarmAgent(RobotAgent):
     m (:class:`Disperse`). ``stats_every`` is the period of its ``swarm_stats`` messages (0: none);
     ``board_timeout`` how long a pose stays on the board; ``side`` the wall to follow; ``shared``
     false gives the agent its own ``send_position`` subscription instead of the host's shared one.
+
+    ``neighbourhood`` R (m; 0, the default: all-to-all) scopes the broadcasts: the agent publishes
+    in the cell of its pose on a grid of ``cell_size`` m (default R) and hears the cells within
+    R + ``margin`` of its robot (default :func:`agents.cells.margin` of ``max_speed`` m/s over one
+    ``report_every``), re-watched every ``report_every`` seconds by the host's hub; it needs the
+    shared subscription, and every agent of a swarm the same R and cell size.
     """
 
     capabilities = ("send_position", STATS_SERVICE)
@@ -154,6 +132,10 @@ class SwarmAgent(RobotAgent):
         simulation: bool = True,
         pose: Sequence[float] | None = None,
         disperse_radius: float = 4.0,
+        neighbourhood: float = 0.0,
+        cell_size: float = 0.0,
+        margin: float | None = None,
+        max_speed: float = 0.5,
     ):
         super().__init__(
             agent_id,
@@ -174,6 +156,21 @@ class SwarmAgent(RobotAgent):
         self.side = side
         self.shared = bool(shared)
         self.disperse_radius = float(disperse_radius)
+        for name, v in (("neighbourhood", neighbourhood), ("cell_size", cell_size), ("max_speed", max_speed)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
+                raise ValueError(f"agent {agent_id}: {name} {v!r} must be a number of metres (per second) >= 0")
+        self.neighbourhood = float(neighbourhood)
+        self.cell_size = float(cell_size) or self.neighbourhood
+        if margin is not None and (isinstance(margin, bool) or not isinstance(margin, (int, float)) or margin < 0):
+            raise ValueError(f"agent {agent_id}: margin {margin!r} must be a number of metres >= 0")
+        self.margin = cell_margin(max_speed, self.report_every) if margin is None else float(margin)
+        if self.neighbourhood and not self.shared:
+            raise ValueError(f"agent {agent_id}: a neighbourhood needs the host's shared subscription (shared: true)")
+        #: neighbourhood: the (sender, sequence number) pairs received (:mod:`.ledger`)
+        self.got = Received()
+        self._ledger: NearLedger | None = None
+        self._headings: _Headings | None = None
+        self.since: float | None = None  # wall time its reception began (neighbourhood: its cells watched)
         self._board = Board()  # its own, when it has its own subscription
         self.broadcasting = True
         #: sender id -> [first sequence seen, last sequence seen, messages received]
@@ -201,6 +198,9 @@ class SwarmAgent(RobotAgent):
         if seq is None:
             self.unnumbered += 1
             return
+        if self.neighbourhood:
+            self.got.add(sender, seq)
+            return
         s = self.senders.get(sender)
         if s is None:
             self.senders[sender] = [seq, seq, 1]
@@ -210,6 +210,17 @@ class SwarmAgent(RobotAgent):
         elif seq < s[0]:
             s[0] = seq
         s[2] += 1
+
+    def take(self, keys: np.ndarray, bins: np.ndarray, lat: np.ndarray) -> None:
+        """Account a batch of neighbourhood messages (:meth:`.ledger.NearLedger.flush`)."""
+        self.got.add_keys(keys)
+        self.received += len(keys)
+        self.latency.add_many(bins, lat)
+
+    @property
+    def ranges(self) -> dict[str, list[int]]:
+        """Neighbourhood: sender id -> the sequence numbers received, flat ``[first0, last0, ...]``."""
+        return self.got.ranges()
 
     @property
     def board(self) -> Board:
@@ -229,9 +240,16 @@ class SwarmAgent(RobotAgent):
         return got, want
 
     def stats(self) -> dict:
-        """The figures of the ``swarm_stats`` service."""
+        """The figures of the ``swarm_stats`` service (with a neighbourhood also ``ranges``:
+        sender -> flat sequence ranges received, ``since`` and ``t``: wall times its reception
+        began and of these figures)."""
         got, want = self.delivery()
+        extra = {}
+        if self.neighbourhood:
+            t = self._ledger.flushed_at if self._ledger is not None else time.time()  # complete up to t
+            extra = {"since": self.since, "t": t, "ranges": self.ranges}
         return {
+            **extra,
             "robot": self.robot,
             "sent": self.sent,
             "received": got,
@@ -260,7 +278,8 @@ class SwarmAgent(RobotAgent):
             self._hub = None
             raise
         self.configure(self.pioneer)
-        self._hub.add_robot(self.robot, self.pioneer)
+        self._hub.add_robot(self.robot, self.pioneer)  # neighbourhood: its cells are watched from now on
+        self.since = time.time()
         now = clock().now()
         # Spread the broadcasts of a crowd started at once over the reporting period.
         self._next_report = now + random.Random(self.id).uniform(0.0, self.report_every)
@@ -270,8 +289,18 @@ class SwarmAgent(RobotAgent):
         """Attach to the host's :class:`agents.hub.RobotHub` and, when ``shared``, to its
         ``send_position`` subscription (:func:`_account_shared` accounts each message for us)."""
         self._hub = RobotHub.attach(self._require_host(), self, period=self.period, board_timeout=self.board_timeout)
-        if self.shared:
-            self._hub.listen(_account_shared)
+        try:
+            if self.neighbourhood:
+                self._ledger, self._headings = _near_hooks(self._hub)
+                self._hub.listen_near(
+                    self.neighbourhood, self.cell_size, self.margin, self.report_every, self._ledger.on_message
+                )
+            elif self.shared:
+                self._hub.listen(_account_shared)
+        except ValueError as e:
+            self._hub.detach(self)
+            self._hub = None
+            raise ValueError(f"agent {self.id}: {e}") from None
         return self._hub
 
     def _build_shared(self, hub: RobotHub) -> Pioneer:  # a worker thread
@@ -294,22 +323,35 @@ class SwarmAgent(RobotAgent):
                             "(is its device server running and reachable?)"
                         ) from None
 
+        def patient(call):
+            """``call()``, again after a pause while the server answers busy (a crowd's start-up
+            fills a simulator's inbox), until the start-up deadline."""
+            pause = 0.1
+            while True:
+                try:
+                    return call()
+                except RpcError as e:
+                    if e.code != ErrorCode.BUSY or time.monotonic() + pause > deadline or self._abort.is_set():
+                        raise
+                time.sleep(pause * random.uniform(1.0, 2.0))
+                pause = min(2.0, 2 * pause)
+
         wait(f"{name}:position2d:0", "position2d:0 device")
         wait(f"{name}:{ranger}:0", f"{ranger}:0 device (laser={self.laser}; does the robot have one?)")
         devs = [hub.node.device(f"{name}:position2d:0"), hub.node.device(f"{name}:{ranger}:0")]
         robot = self.pioneer_class(devs, name=name, period=self.period, laser=self.laser)
         left = max(0.5, deadline - time.monotonic())
         try:
-            devs[1].describe(timeout=min(5.0, left))  # the beam geometry, before the first cycle
+            patient(lambda: devs[1].describe(timeout=min(5.0, left)))  # the beam geometry, before the first cycle
             robot.position2d.wait_for_data(left)
             start = self.start_pose
             if start is None and self.simulation:
                 wait("*:simulation:0", "simulation device (simulation=true; is this a simulated robot?)")
                 sim = hub.node.device(hub.node.matches("*:simulation:0")[0])
-                start = sim.get_pose(name)
+                start = patient(lambda: sim.get_pose(name))
             if start is not None:
                 n = robot.position2d.count
-                robot.position2d.set_odometry(start)
+                patient(lambda: robot.position2d.set_odometry(start))
                 robot.position2d.wait_for_data(max(0.5, deadline - time.monotonic()), newer_than=n + 1)
                 self.frame = "map"
         except (TimeoutError, RobotError, RpcError) as e:
@@ -338,11 +380,19 @@ class SwarmAgent(RobotAgent):
         if now >= self._next_report:
             self._next_report = max(self._next_report + self.report_every, now)
             msg = self.pose_message() if self.broadcasting else None
-            if msg is not None and self.frame == "map" and self.pioneer is not None:
+            if msg is not None and self.frame == "map" and self.pioneer is not None and self._headings is not None:
+                self.pioneer.behaviour.heading = self._headings.of.get(self.robot)  # the hub's, all at once
+            elif msg is not None and self.frame == "map" and self.pioneer is not None:
                 me = Position(msg.x, msg.y, msg.yaw)
-                self.pioneer.behaviour.heading = away_from(me, list(self.positions().values()), self.disperse_radius)
+                if self.shared and self._hub is not None:  # the host's latest poses, as arrays
+                    r = min(self.disperse_radius, self.neighbourhood or self.disperse_radius)
+                    others = self._hub.near(msg.x, msg.y, r, exclude=self.robot)
+                else:
+                    others = list(self.positions().values())
+                self.pioneer.behaviour.heading = away_from(me, others, self.disperse_radius)
             if msg is not None:
-                self.publish(SendPosition.SERVICE, msg, conversation=f"p{self.sent}")
+                cell = cell_of(msg.x, msg.y, self.cell_size) if self.neighbourhood else None
+                self.publish(SendPosition.SERVICE, msg, conversation=f"p{self.sent}", cell=cell)
                 self.sent += 1
         if self.stats_every > 0 and now >= self._next_stats:
             self._next_stats = max(self._next_stats + self.stats_every, now)
@@ -366,9 +416,24 @@ class SwarmAgent(RobotAgent):
         )
 
 
+def _near_hooks(hub: RobotHub) -> tuple[NearLedger, _Headings]:
+    """The hub's :class:`.ledger.NearLedger` and :class:`_Headings` (made on first use; both run
+    before each re-watch)."""
+    owners = [getattr(fn, "__self__", None) for fn in hub.before_rewatch]
+    found = {type(o): o for o in owners if o is not None}
+    if NearLedger not in found:
+        found[NearLedger] = NearLedger(hub)
+        hub.before_rewatch.append(found[NearLedger].flush)
+    if _Headings not in found:
+        found[_Headings] = _Headings(hub)
+        hub.before_rewatch.append(found[_Headings].update)
+    return found[NearLedger], found[_Headings]
+
+
 def _account_shared(hub: RobotHub, msg: Message, now: float) -> None:
     """The hub's ``send_position`` listener: the sequence number and latency bin of a message are
-    worked out once and accounted by every swarm agent of the host that shares the subscription."""
+    worked out once and accounted by every swarm agent of the host that shares the subscription
+    (a neighbourhood's messages go through the hub's :class:`.ledger.NearLedger` instead)."""
     lat = max(0.0, now - msg.time)
     seq = sequence(msg.conversation)
     i = latency_bin(lat)

@@ -6,7 +6,10 @@
 (positions broadcast), ``received`` and ``expected`` int (numbered positions received, and the ones
 the sequence numbers say were sent: the difference is the losses), ``senders`` int, ``board`` int
 (poses on its blackboard), ``latency`` (:meth:`.metrics.LatencyHistogram.to_dict`: ``bins``,
-``counts``, ``max``, ``sum``). A ``send_position`` broadcast's conversation id is ``p<sequence>``.
+``counts``, ``max``, ``sum``). With a neighbourhood also ``ranges`` (sender id -> the sequence
+numbers received as flat inclusive ranges ``[first0, last0, first1, last1, ...]``), ``since`` and
+``t`` (wall times: reception began; the figures are complete up to ``t``). A ``send_position``
+broadcast's conversation id is ``p<sequence>``.
 """
 
 __all__ = ["STATS_SERVICE"]

@@ -59,6 +59,14 @@ class LatencyHistogram:
             self.max_s = latency
         self.sum_s += latency
 
+    def add_many(self, bins: np.ndarray, latencies: np.ndarray) -> None:
+        """Count many latencies (seconds) whose bins are given (vectorised)."""
+        if len(bins):
+            self._flush()
+            self.counts += np.bincount(bins, minlength=_NBINS)
+            self.max_s = max(self.max_s, float(np.max(latencies)))
+            self.sum_s += float(np.sum(latencies))
+
     def _flush(self) -> None:
         if self._npending:
             self.counts += np.asarray(self._pending, dtype=np.int64)

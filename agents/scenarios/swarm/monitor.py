@@ -3,6 +3,9 @@
 Every ``sample_every`` seconds it asks the ``simulation`` device for every robot's true pose, checks
 that no two robots overlap, follows the spread (mean nearest-neighbour distance), merges the agents'
 ``swarm_stats`` and after ``duration`` simulated seconds publishes the verdict as an ``outcome``.
+With a ``neighbourhood`` radius it also listens to every cell's broadcasts and judges delivery on
+ground truth (:class:`.delivery.NeighbourhoodDelivery`: every receiver within the radius of the
+sender at send time must have received it).
 """
 
 from __future__ import annotations
@@ -10,18 +13,20 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import time
 from collections.abc import Sequence
 
 import numpy as np
 
 from agents.registry import agent_class
 from agents.runtime import Agent
-from agents.services import Message, Outcome
+from agents.services import Message, Outcome, SendPosition, Subscription
 from rsal.client import Fabric
 from rsal.clock import clock
 
+from .delivery import Delivery, NeighbourhoodDelivery
 from .messages import STATS_SERVICE
-from .metrics import LatencyHistogram
+from .metrics import LatencyHistogram, sequence
 
 __all__ = ["SwarmMonitor"]
 
@@ -40,6 +45,10 @@ class SwarmMonitor(Agent):
     ok when there was no overlap, the delivery ratio is at least ``min_delivery`` percent, the p99
     latency at most ``max_p99_ms`` and every robot's agent reported. ``robots`` is a count (robots
     ``<prefix>0`` .. ``<prefix>N-1``) or a list of robot ids.
+
+    With ``neighbourhood`` R > 0 (the agents' own radius) the delivery ratio is the ground-truth
+    one of :class:`.delivery.NeighbourhoodDelivery` (``settle`` s at either end of each receiver's
+    listening time are not judged), and a broadcast the monitor itself missed is a problem too.
     """
 
     capabilities = ("outcome",)
@@ -60,6 +69,8 @@ class SwarmMonitor(Agent):
         simulation: str = "sim",
         startup_timeout: float = 60.0,
         report_every: float = 10.0,
+        neighbourhood: float = 0.0,
+        settle: float = 1.0,
     ):
         super().__init__(agent_id, period=sample_every, robot=robot)
         if isinstance(robots, bool) or not isinstance(robots, (int, list, tuple)):
@@ -88,9 +99,24 @@ class SwarmMonitor(Agent):
         self.spread: list[tuple[float, float]] = []  # (sim time, mean nearest-neighbour distance)
         self.verdict: Outcome | None = None
         self.fabric: Fabric | None = None
+        if isinstance(neighbourhood, bool) or not isinstance(neighbourhood, (int, float)) or neighbourhood < 0:
+            raise ValueError(f"agent {agent_id}: neighbourhood {neighbourhood!r} must be a radius in metres >= 0")
+        self.neighbourhood = float(neighbourhood)
+        self.delivery = NeighbourhoodDelivery(self.robots, self.neighbourhood, settle) if neighbourhood else None
+        self._sends: Subscription | None = None
 
     async def created(self) -> None:
         self.subscribe(STATS_SERVICE, self._on_stats)
+        if self.delivery is not None:  # every cell's broadcasts: the send times of what is owed
+            services = self._require_host().services
+            self._sends = Subscription(
+                services, SendPosition.SERVICE, self._on_send, None, self.id, keyexpr=f"svc/{SendPosition.SERVICE}/*/*"
+            )
+
+    def _on_send(self, msg: Message) -> None:
+        seq = sequence(msg.conversation)
+        if seq is not None and self.delivery is not None:
+            self.delivery.sent(msg.sender, msg.body.robot, seq, time.time())
 
     def _on_stats(self, msg: Message) -> None:
         if isinstance(msg.body, dict) and isinstance(msg.body.get("latency"), dict):
@@ -113,10 +139,9 @@ class SwarmMonitor(Agent):
         return sim
 
     async def poses(self, sim) -> np.ndarray:
-        """(n, 2) true positions of the watched robots (one concurrent get_pose per robot)."""
-        futs = [asyncio.wrap_future(sim.rpc_async("get_pose", name=r)) for r in self.robots]
-        replies = await asyncio.gather(*futs)
-        return np.array([r["pose"][:2] for r in replies], dtype=float)
+        """(n, 2) true positions of the watched robots (one ``get_poses``: one simulated instant)."""
+        reply = await asyncio.wrap_future(sim.rpc_async("get_poses", names=self.robots))
+        return np.array([p[:2] for p in reply["poses"]], dtype=float)
 
     def check(self, xy: np.ndarray, t: float) -> None:
         """Account one ground-truth sample: overlaps, closest pair, spread."""
@@ -145,25 +170,39 @@ class SwarmMonitor(Agent):
                 log.warning("%s: ignored bad swarm_stats: %s", self.id, e)
         return got, want, hist, len(self.stats)
 
-    def judge(self, elapsed: float) -> Outcome:
+    def judge(self, elapsed: float, final: bool = True) -> Outcome:
         got, want, hist, reporting = self.merged()
+        nd: Delivery | None = None
+        if self.delivery is not None:  # ground truth within the radius (final: the whole run)
+            nd = self.delivery.result(self.stats) if final else Delivery()
+            got, want = nd.received, nd.expected
         delivery = 100.0 * got / want if want else 0.0
         p99 = 1000.0 * hist.quantile(0.99) if hist.n else math.inf
         n = len(self.robots)
         problems = []
         if self.overlaps:
             problems.append(f"{self.overlaps} overlap(s), closest {self.closest:.2f} m")
-        if delivery < self.min_delivery:
+        if final and delivery < self.min_delivery:
             problems.append(f"delivery {delivery:.2f} % < {self.min_delivery:g} %")
+            if nd is not None and nd.missing:
+                problems.append("missing (receiver, sender, seq, m): " + ", ".join(map(str, nd.missing)))
+        if nd is not None and nd.monitor_missed:
+            problems.append(f"the monitor itself missed {nd.monitor_missed} broadcast(s)")
         if not p99 <= self.max_p99_ms:
             problems.append(f"p99 latency {p99:.0f} ms > {self.max_p99_ms:g} ms")
         if reporting < n:
             problems.append(f"stats from {reporting} of {n} agents")
         s0 = self.spread[0][1] if self.spread else math.nan
         s1 = self.spread[-1][1] if self.spread else math.nan
+        scope = f" within {self.neighbourhood:g} m" if nd is not None else ""
+        judged = (
+            f"delivery{scope} {delivery:.1f} % ({got}/{want})"
+            if final or nd is None
+            else (f"{self.delivery.nsent} broadcasts seen")
+        )
         text = (
             f"{n} robots {elapsed:.0f} s: {'no overlap' if not self.overlaps else f'{self.overlaps} overlap(s)'}, "
-            f"delivery {delivery:.1f} % ({got}/{want}), p99 latency {p99:.0f} ms, spread {s0:.1f} -> {s1:.1f} m"
+            f"{judged}, p99 latency {p99:.0f} ms, spread {s0:.1f} -> {s1:.1f} m"
         )
         if problems:
             text += " -- " + "; ".join(problems)
@@ -177,11 +216,15 @@ class SwarmMonitor(Agent):
             started = clock().now()
             t = sim.latest.t
             try:
+                w0 = time.time()
                 xy = await self.poses(sim)
+                w1 = time.time()
             except Exception as e:  # a slow or restarting simulator: skip this sample
                 log.warning("%s: ground-truth sample failed: %s", self.id, e)
             else:
                 self.check(xy, t)
+                if self.delivery is not None:
+                    self.delivery.truth(0.5 * (w0 + w1), xy)
             if t - t0 >= self.duration:
                 self.verdict = self.judge(t - t0)
                 self.publish(Outcome.SERVICE, self.verdict)
@@ -189,9 +232,11 @@ class SwarmMonitor(Agent):
                 return
             if clock().now() >= next_report:
                 next_report += self.report_every
-                log.info("%s: %s", self.id, self.judge(t - t0).text)
+                log.info("%s: %s", self.id, self.judge(t - t0, final=False).text)
             await clock().asleep_until(started + self.sample_every)
 
     async def killed(self) -> None:
+        if self._sends is not None:
+            self._sends.close()
         if self.fabric is not None:
             self.fabric.close()

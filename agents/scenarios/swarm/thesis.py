@@ -37,7 +37,8 @@ from agents.services import Outcome, SendPosition
 from rsal.behaviours import BehaviourParams
 from rsal.robot import Pioneer
 
-from .agents import SwarmAgent, SwarmPioneer
+from .agents import SwarmAgent
+from .behaviour import SwarmPioneer
 from .monitor import SwarmMonitor
 
 __all__ = ["ThesisPioneer", "ThesisSwarmAgent", "ThesisSwarmMonitor", "params_for_size"]

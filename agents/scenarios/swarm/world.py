@@ -24,10 +24,15 @@ def crowd_world(
     bitmap: str = "arena.png",
     model: str = "pioneer2dx",
     name: str = "r",
+    localization: str = "odom",
 ) -> str:
     """The Stage world text of ``n`` robots (``<name>0`` ..) on a square grid ``spacing`` m apart,
     centred on the 128 m arena's free middle, each facing a random direction (``seed``).
-    ``bitmap`` is the arena's floorplan, relative to where the world file is written."""
+    ``bitmap`` is the arena's floorplan, relative to where the world file is written.
+    ``localization "gps"`` makes each robot's position2d report its true pose (Stage's keyword; a
+    stand-in for a localizer, for the neighbourhood form whose cells come from the robots' poses)."""
+    if localization not in ("odom", "gps"):
+        raise ValueError(f"localization {localization!r} must be 'odom' or 'gps'")
     if n < 1:
         raise ValueError(f"a crowd needs at least one robot, got {n}")
     side = math.ceil(math.sqrt(n))
@@ -41,6 +46,11 @@ def crowd_world(
         "# agents.scenarios.swarm.crowd_world: the 128 m arena, robots on a square grid around its centre,",
         f"# {spacing:g} m apart, random headings (seed {seed}). Each is a {_MODELS.get(model, model)}",
         "# (the light sensor model: no laser). Stage 4 syntax; original to this project.",
+        *(
+            ['# localization "gps": each position2d reports its true pose (the neighbourhood form\'s cells).']
+            if localization == "gps"
+            else []
+        ),
         "",
         'include "pioneer.inc"',
         'include "map.inc"',
@@ -63,8 +73,9 @@ def crowd_world(
         row, col = divmod(i, side)
         x, y = -half + col * spacing, -half + row * spacing
         yaw = rng.uniform(-180.0, 180.0)
+        loc = ' localization "gps"' if localization == "gps" else ""
         lines.append(
-            f'{model}( name "{name}{i}" pose [ {x:.2f} {y:.2f} 0 {yaw:.0f} ] color "{colors[row % len(colors)]}" )'
+            f'{model}( name "{name}{i}" pose [ {x:.2f} {y:.2f} 0 {yaw:.0f} ] color "{colors[row % len(colors)]}"{loc} )'
         )
     return "\n".join(lines) + "\n"
 
