@@ -204,8 +204,8 @@ class ThesisSwarmMonitor(SwarmMonitor):
         rw = sum(int(v[1]) for k, v in per.items() if k in watched)
         return rr, rw
 
-    def judge(self, elapsed: float) -> Outcome:
-        base = super().judge(elapsed)
+    def judge(self, elapsed: float, final: bool = True) -> Outcome:
+        base = super().judge(elapsed, final)
         share, p95, worst = self.localization()
         rr, rw = self.contact_counts()
         problems = []
@@ -222,7 +222,7 @@ class ThesisSwarmMonitor(SwarmMonitor):
         )
         if problems:
             text += " -- " + "; ".join(problems)
-        return Outcome("verdict", "swarm", text, ok=base.ok and not problems, final=True)
+        return Outcome(base.event, base.subject, text, ok=base.ok and not problems, final=base.final)
 
     async def killed(self) -> None:
         if self._est_node is not None:
