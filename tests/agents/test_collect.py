@@ -38,7 +38,7 @@ class _Recorder:
     def __init__(self):
         self.sent: list[tuple[str, object]] = []
 
-    def publish(self, service, body, *, sender, conversation=None):
+    def publish(self, service, body, *, sender, conversation=None, cell=None):
         self.sent.append((service, body))
         return "c"
 
