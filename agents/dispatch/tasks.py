@@ -36,6 +36,7 @@ from typing import Any, ClassVar
 
 from rsal.errors import RsalError
 from rsal.msgs import MessageError, get_bool, get_float, get_int, get_str
+from rsal.suggest import did_you_mean
 
 __all__ = [
     "KINDS",
@@ -140,10 +141,8 @@ def parse_task(m: Any, task_id: str = "") -> Task:
     where = f"task {tid}"
     kind = m.get("kind")
     if kind not in KINDS:
-        import difflib
-
-        near = difflib.get_close_matches(str(kind), KINDS, n=1)
-        hint = f"did you mean {near[0]!r}?" if near else f"use one of {', '.join(KINDS)}"
+        near = did_you_mean(str(kind), KINDS)
+        hint = f"did you mean {near!r}?" if near else f"use one of {', '.join(KINDS)}"
         raise TaskRefused(Refusal.UNKNOWN_KIND, f"{where}: unknown task kind {kind!r}; {hint}")
     args = m.get("args", {})
     if not isinstance(args, dict) or not all(isinstance(k, str) for k in args):

@@ -198,8 +198,9 @@ class ThesisSwarmMonitor(SwarmMonitor):
             m = dev.latest
             if m is not None:
                 est[i] = m.pose[:2]
-        if len(est) == len(xy):
-            self.loc_errors.append(np.hypot(*(est - xy).T))
+        if len(est) != len(xy) or (not self.loc_errors and np.isnan(est).any()):
+            return  # localization is judged from the first sample with every robot's estimate on
+        self.loc_errors.append(np.hypot(*(est - xy).T))
 
     def localization(self) -> tuple[float, float, float]:
         """(share of robot-samples within ``max_loc_error``, its 95th percentile, the worst) in m."""
