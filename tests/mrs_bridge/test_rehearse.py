@@ -20,7 +20,7 @@ from conftest import ROOT, rsal_cmd, wait_until
 from mrs_bridge.emulators.urg import SENSORS
 from mrs_bridge.rehearse.cli import user_config
 from mrs_bridge.rehearse.coupling import WorldLaser, WorldRobot
-from rsal.msgs import VelocityCmd
+from rsal.msgs import ErrorCode, RpcError, VelocityCmd
 
 TESTROOM = ROOT / "maps" / "testroom.world"
 URG = SENSORS["URG-04LX"]
@@ -273,7 +273,17 @@ def test_the_navigation_stack_drives_the_rehearsed_robot_to_a_goal(rehearsal_nav
     fab.node("r0/**").wait_for("r0/planner/0", timeout=60)
     planner = fab.device("r0:planner:0")
     goal = (0.5, -2.5)
-    assert planner.set_goal(Position(*goal, 0.0)).result(timeout=90) == "done"
+    fab.device("r0:position2d:2").wait_for_data(60)  # amcl's first localized pose
+    deadline = time.monotonic() + 30
+    while True:  # the planner answers unavailable until that pose has reached it too
+        try:
+            done = planner.set_goal(Position(*goal, 0.0)).result(timeout=90)
+            break
+        except RpcError as e:
+            if e.code != ErrorCode.UNAVAILABLE or time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)
+    assert done == "done"
     assert np.hypot(*(_truth(sim) - goal)) < 0.4, "the robot is not at the goal (ground truth)"
     loc = fab.device("r0:position2d:2").wait_for_data(5).pose
     assert np.hypot(*(_truth(sim) - loc[:2])) < 0.3  # localized to the thesis's 0.30 m
