@@ -1,6 +1,5 @@
 """Awareness: one agent started for every robot whose devices appear, stopped when they go (the
-thesis's outlook: Jadex "Awareness" discovers platforms and starts agents on them; issue 17,
-point 5).
+thesis's outlook: Jadex "Awareness" discovers platforms and starts agents on them).
 
 A host daemon (:mod:`agents.hostd`) with an ``[awareness]`` section follows the liveliness tokens
 of robot bases, ``rsal/<node>/position2d/<idx>``. When the first base of a node whose name matches

@@ -1,5 +1,5 @@
 """``rsal host [--name NAME] [--host-config FILE]``: the per-machine daemon that starts agent hosts
-on request (issue 17, point 5; thesis 3.6.1: Jadex placed an application's agents on any platform;
+on request (thesis 3.6.1: Jadex placed an application's agents on any platform;
 outlook, "Awareness": agents that start when a robot appears).
 
 The daemon declares the liveliness token ``hosts/<name>`` once its queryable

@@ -1,5 +1,5 @@
 """The host daemon's wire: the requests ``rsal run`` sends to ``rsal host`` and what a launched agent
-host sends back (issue 17, point 5; thesis 3.6.1: Jadex started an application's agents on any
+host sends back (thesis 3.6.1: Jadex started an application's agents on any
 platform of the network, outlook: agents started on the robots' own computers).
 
 Keys (:mod:`rsal.keys`; ``docs/protocol.md``, "Host daemons")::

@@ -1,5 +1,5 @@
-"""An agent host launched on another machine's host daemon, as ``rsal run`` sees it (issue 17,
-point 5; the daemon is :mod:`agents.hostd`, the wire :mod:`agents.hostwire`).
+"""An agent host launched on another machine's host daemon, as ``rsal run`` sees it (the
+daemon is :mod:`agents.hostd`, the wire :mod:`agents.hostwire`).
 
 :class:`RemoteHost` has the face of :class:`rsal.procs.Child` that the runner uses (``name``,
 ``kind``, ``pid``, ``poll()``, ``exit_reason()``, ``drained()``, ``reported``), so a host group placed

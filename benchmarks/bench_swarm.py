@@ -22,7 +22,7 @@ time and fewer than 5 % of control cycles overrun.
 Baseline in the same run (``--baseline``, on by default): the same N agents in one host with no
 robots and no simulator, broadcasting a fixed pose: the messaging alone.
 
-Neighbourhood form (``--neighbourhood R``, issue 17): each N runs twice on the same crowd, whose
+Neighbourhood form (``--neighbourhood R``): each N runs twice on the same crowd, whose
 robots report their true pose (``localization "gps"``): all-to-all (``form=all``, the baseline) and
 with broadcasts scoped to R m (``form=near``: :class:`agents.hub.RobotHub` listens only to the cells
 of ``--cell-size`` m, default R, within R plus a margin of its robots). The near form's delivery is

@@ -89,7 +89,7 @@ def cnp(sender: str, conv: str, performative: str, **body) -> bytes:
 
 
 def test_ghost_call_and_forged_awards_commit_no_participant(fabric, caplog):
-    """Issue 14's "ghost": a forged call for proposals for a prey named ghost plus forged awards,
+    """The "ghost" forgery: a forged call for proposals for a prey named ghost plus forged awards,
     put by a stock session. The participant does not bid, does not perform, logs each kind of
     forgery once per sender, and still serves its genuine initiator afterwards."""
     host, out = fabric["host"], fabric["outsider"]

@@ -347,7 +347,7 @@ def test_connect_joins_a_running_fabric(procs, tmp_path):
 
 
 def test_a_forged_outcome_from_a_stranger_changes_nothing(procs, tmp_path):
-    """Issue 14's forgery replayed with a stock Zenoh client: a final, successful ``caught`` from a
+    """The ghost forgery replayed with a stock Zenoh client: a final, successful ``caught`` from a
     peer that is no agent of the application does not end the run; the run ends by its own timeout,
     and the stranger is reported once."""
     import json

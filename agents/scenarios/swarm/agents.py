@@ -21,7 +21,7 @@ every robot's behaviour cycle in turn instead of a thread per robot, and one Zen
 for each agent on the loop. ``shared=False`` gives an agent its own subscription and blackboard.
 The run's judge is :class:`.monitor.SwarmMonitor`, its world :func:`.world.crowd_world`.
 
-With ``neighbourhood`` R > 0 (issue 17's neighbourhood-scoped broadcasts, the thesis's
+With ``neighbourhood`` R > 0 (neighbourhood-scoped broadcasts, the thesis's
 "information-hiding", 5.3) an agent publishes in the cell of its pose
 (``svc/send_position/<cell>/<sender>``, :mod:`agents.cells`) and the host's hub listens only to the
 cells within R plus a margin of its robots (:meth:`agents.hub.RobotHub.listen_near`); a message is

@@ -1,4 +1,4 @@
-"""Delivery within a radius, judged on the simulation's ground truth (issue 17: neighbourhood broadcasts).
+"""Delivery within a radius, judged on the simulation's ground truth (neighbourhood broadcasts).
 
 With neighbourhood-scoped broadcasts (:mod:`agents.cells`) a receiver is owed only the broadcasts
 of the senders near it, so the all-to-all measure (every sequence number of every sender) no longer

@@ -1,4 +1,4 @@
-"""What the agents of a neighbourhood swarm received, accounted in batches (issue 17: 1000 robots).
+"""What the agents of a neighbourhood swarm received, accounted in batches (sized for 1000 robots).
 
 All-to-all, every agent of a host accounts every message (one Python call per receiver and
 message). With neighbourhood-scoped broadcasts a message is owed only to the agents whose cells
