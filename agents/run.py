@@ -33,8 +33,10 @@ first (:mod:`agents.verdict`; a rehearsed robot's against the rehearsal's world,
 also with ``--connect`` to a fabric whose simulation device is alive): a catch, an arrival, a
 delivery or a final verdict the true poses contradict counts as failed, and a duration run's
 ``travel``/``clearance`` come from sampled true poses. It fails (exit 1) on its timeout, a failed
-final outcome or a child that exits unexpectedly (one line naming it and its last stderr line). A
-bad scenario file or argument exits 2 with one line; SIGINT/SIGTERM stop everything and exit 130.
+final outcome, a claim of its end event that ground truth refuses (at once: the agents believe the
+claim and stop, so the end can no longer come), or a child that exits unexpectedly (one line naming
+it and its last stderr line). A bad scenario file or argument exits 2 with one line; SIGINT/SIGTERM
+stop everything and exit 130.
 Stopping sends SIGTERM to the agent hosts, then the servers, then the rehearsal, then the simulator,
 each with a deadline, and SIGKILL by PID to whatever is left. The format and the lines printed are
 described in ``docs/scenarios.md``.
@@ -105,6 +107,7 @@ class _Tally:
 
     subjects: dict[str, dict[str, str]] = field(default_factory=dict)  # event -> subject -> first text
     failed: list[str] = field(default_factory=list)
+    refused: str | None = None  # the first claim of the end event that ground truth refused
     messages: collections.Counter = field(default_factory=collections.Counter)
     final: tuple[bool, str] | None = None
 
@@ -399,6 +402,8 @@ class Runner:
                 self.out.say(self.truth.note)
             if false:
                 what = dataclasses.replace(what, text=f"{what.text} -- {false}", ok=False)
+                if what.event == self.end.event and t.refused is None:
+                    t.refused = what.text
             if what.final:
                 if t.final is None:
                     t.final = (what.ok, what.text)
@@ -487,6 +492,11 @@ class Runner:
                 self.all_alive_at = now
                 self.out.say(f"all {len(self.expected)} agent(s) alive after {now - t0:.1f} s")
             e = self.end
+            if e.event is not None and t.refused is not None:
+                # the agents believe the claim (hunters stop chasing a prey claimed caught): the run
+                # cannot reach its end any more, so it fails now rather than at its timeout
+                self.result = (False, f"a {e.event} claim that ground truth refuses: {t.refused}")
+                return
             if e.event is not None:
                 got = t.subjects.get(e.event, {})
                 if len(got) >= e.count:

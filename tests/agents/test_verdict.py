@@ -204,3 +204,32 @@ def test_a_collectors_home_argument_is_its_home(tmp_path):
     assert g.check("master", Outcome("delivered", "blob0", "x")) is None
     assert g.check("master", Outcome("delivered", "blob1", "x")) is None
     assert g.note == "ground truth: 2 bin(s) within 1 m of a collector's home"
+
+
+def _runner(sc, app, poses):
+    """rsal run's Runner with the in-memory simulation as its ground truth and no fabric."""
+    import argparse
+
+    from agents.run import Runner, _Out
+
+    args = argparse.Namespace(timeout=None, progress=0, connect=None, listen=None, config=None, cfg=None)
+    r = Runner(sc, sc.applications[app], args, _Out())
+    r.truth, _ = judge(sc, app, poses)
+    r.phase = "run"
+    return r
+
+
+def test_a_refused_claim_of_the_end_event_ends_the_run_at_once_as_failed(sc, capsys):
+    r = _runner(sc, "hunt", {"r0": (0.0, 0.0), "r1": (4.0, 0.0), "r2": (0.5, 0.0)})
+    r._handle(("outcome", "h1", Outcome("caught", "r0", "prey r0 caught by r1")))
+    r._check(now=1.0, t0=0.0)
+    assert r.result is not None and r.result[0] is False
+    assert r.result[1].startswith("a caught claim that ground truth refuses: prey r0 caught by r1 -- ground truth:")
+    assert "not confirmed" in capsys.readouterr().out
+
+
+def test_a_confirmed_claim_of_the_end_event_ends_the_run_with_success(sc):
+    r = _runner(sc, "hunt", {"r0": (0.0, 0.0), "r1": (4.0, 0.0), "r2": (0.5, 0.0)})
+    r._handle(("outcome", "h2", Outcome("caught", "r0", "prey r0 caught by r2")))
+    r._check(now=1.0, t0=0.0)
+    assert r.result == (True, "prey r0 caught by r2")
