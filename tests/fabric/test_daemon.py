@@ -76,21 +76,27 @@ def test_exec_start_serves_and_sigterm_withdraws_within_the_stop_timeout(tmp_pat
     argv = expand(svc["ExecStart"], env)
     assert argv[0] == f"{INSTALL}/.venv/bin/rsal"
     argv = [sys.executable, "-m", "rsal.cli", *argv[1:]]  # this checkout instead of the install path
+    _start_then_sigterm(svc, argv, port, "rsal/r0/**", ["rsal/r0/laser/0"], "the daemon's laser token")
+
+
+def _start_then_sigterm(svc, argv: list[str], port: int, selector: str, want: list[str], what: str) -> None:
+    """Start the unit's command, wait for its liveliness tokens (``want`` under ``selector``), send
+    the unit's KillSignal: the process exits 0 within TimeoutStopSec, the tokens go, no traceback."""
     proc = Proc(argv)
     session = open_session(TransportArgs(connect=[f"tcp/127.0.0.1:{port}"]))
     try:
 
         def tokens() -> list[str]:
-            return [str(r.ok.key_expr) for r in session.liveliness().get("rsal/r0/**", timeout=1.0) if r.ok]
+            return [str(r.ok.key_expr) for r in session.liveliness().get(selector, timeout=1.0) if r.ok]
 
-        wait_until(lambda: tokens() == ["rsal/r0/laser/0"], 30, "the daemon's laser token")
+        wait_until(lambda: tokens() == want, 30, what)
         t0 = time.monotonic()
         proc.signal(getattr(signal, svc["KillSignal"]))
         stop_timeout = float(svc["TimeoutStopSec"])
         wait_until(lambda: not proc.alive(), stop_timeout, "the daemon to exit within TimeoutStopSec")
         assert proc.p.returncode == 0, proc.output()
         assert time.monotonic() - t0 < stop_timeout
-        wait_until(lambda: tokens() == [], 5, "the laser token to be withdrawn")
+        wait_until(lambda: tokens() == [], 5, "the token to be withdrawn")
         assert "Traceback" not in proc.output()
     finally:
         session.close()
@@ -117,22 +123,5 @@ def test_the_host_daemon_unit_announces_the_host_and_sigterm_withdraws_it(tmp_pa
     port = free_port()
     argv = expand(svc["ExecStart"], {"RSAL_HOST_CONFIG": str(example), "RSAL_ARGS": f"--listen tcp/127.0.0.1:{port}"})
     assert argv[0] == f"{INSTALL}/.venv/bin/rsal" and argv[1] == "host"
-    proc = Proc([sys.executable, "-m", "rsal.cli", *argv[1:]])
-    session = open_session(TransportArgs(connect=[f"tcp/127.0.0.1:{port}"]))
-    try:
-
-        def tokens() -> list[str]:
-            return [str(r.ok.key_expr) for r in session.liveliness().get("hosts/*", timeout=1.0) if r.ok]
-
-        wait_until(lambda: tokens() == ["hosts/r0"], 30, "the host daemon's token")
-        t0 = time.monotonic()
-        proc.signal(getattr(signal, svc["KillSignal"]))
-        stop_timeout = float(svc["TimeoutStopSec"])
-        wait_until(lambda: not proc.alive(), stop_timeout, "the daemon to exit within TimeoutStopSec")
-        assert proc.p.returncode == 0, proc.output()
-        assert time.monotonic() - t0 < stop_timeout
-        wait_until(lambda: tokens() == [], 5, "the token to be withdrawn")
-        assert "Traceback" not in proc.output()
-    finally:
-        session.close()
-        proc.close()
+    argv = [sys.executable, "-m", "rsal.cli", *argv[1:]]
+    _start_then_sigterm(svc, argv, port, "hosts/*", ["hosts/r0"], "the host daemon's token")
