@@ -26,8 +26,12 @@ send a goal to its planner (:meth:`rsal.devices.Planner.set_goal`), stop it (pla
 zero velocity on ``position2d:0``) and start or stop wall-following. The map is the ``rpc/get``
 grid of a ``map`` device, served as a PNG with its origin and resolution.
 
+The Tasks panel lists the fleet dispatcher's tasks live and submits and cancels them with the
+messages ``rsal task`` sends (:mod:`~agents.control.tasks`).
+
 The package: :mod:`~agents.control.http` (the server), :mod:`~agents.control.api` (the JSON API and
-its input checks), :mod:`~agents.control.console` (the robot console) and this module (the
+its input checks), :mod:`~agents.control.console` (the robot console), :mod:`~agents.control.tasks`
+(the Tasks panel) and this module (the
 :class:`Control` that holds the state, its children and the command). The API
 (``docs/control.md``) validates every input; a bad one is answered with HTTP 400 and
 ``{"error": "<one line>"}``, never a traceback. SIGINT or SIGTERM stop every child by its PID
@@ -52,6 +56,7 @@ from rsal.transport import free_port
 from .api import ApiError, Run, ScenarioApi, map_png
 from .console import RobotConsole, RobotState
 from .http import Handler, make_server
+from .tasks import TasksApi
 
 __all__ = ["ApiError", "Control", "Handler", "Run", "RobotState", "map_png", "register", "run_control"]
 
@@ -77,7 +82,7 @@ def _killed(c: Child, waited: float) -> None:
 
 
 # ---------------------------------------------------------------------------- the control center
-class Control(ScenarioApi, RobotConsole):
+class Control(ScenarioApi, RobotConsole, TasksApi):
     """State and actions behind the API; thread-safe (HTTP handler threads, Zenoh threads)."""
 
     def __init__(
@@ -106,6 +111,7 @@ class Control(ScenarioApi, RobotConsole):
         self.fabric = None
         self._stop = threading.Event()
         self._poller: threading.Thread | None = None
+        self._init_tasks()
 
     # ------------------------------------------------------------------ fabric
     def open(self, targs) -> None:
@@ -118,6 +124,8 @@ class Control(ScenarioApi, RobotConsole):
 
         def on_agent(sample) -> None:
             name = str(sample.key_expr).split("/", 1)[1]
+            if name == self.desk_id:
+                return
             with self._lock:
                 (self.agents.add if sample.kind == zenoh.SampleKind.PUT else self.agents.discard)(name)
 
@@ -140,6 +148,7 @@ class Control(ScenarioApi, RobotConsole):
             lv.declare_subscriber("agents/*", on_agent, history=True),
             lv.declare_subscriber("rsal/*/*/*", on_device, history=True),
         ]
+        self._start_tasks(s)
         self._poller = threading.Thread(target=self._poll_loop, name="control-poller", daemon=True)
         self._poller.start()
 
@@ -155,6 +164,7 @@ class Control(ScenarioApi, RobotConsole):
         stop_all(runs + walls, _steps("run"), _killed)  # together: a run stops its own children first
         if watch is not None:
             self._stop_child(watch, "watch")
+        self._stop_tasks()
         for h in self._handles:
             try:
                 h.undeclare()

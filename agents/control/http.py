@@ -94,6 +94,8 @@ class Handler(BaseHTTPRequestHandler):
                     return self._static(parts[1])
                 if parts == ["api", "state"]:
                     return self._json(c.state())
+                if parts == ["api", "tasks"]:
+                    return self._json(c.tasks())
                 if parts == ["api", "scenarios"]:
                     return self._json(c.scenarios())
                 if parts == ["api", "map"]:
@@ -113,6 +115,11 @@ class Handler(BaseHTTPRequestHandler):
                     except ValueError:
                         raise ApiError(f"run id {parts[2]!r} must be a number", 404) from None
                     return self._json(c.stop_run(rid))
+                if parts == ["api", "tasks"]:
+                    return self._json(c.submit_task(self._body()))
+                if len(parts) == 4 and parts[:2] == ["api", "tasks"] and parts[3] == "cancel":
+                    self._body()
+                    return self._json(c.cancel_task(parts[2]))
                 if parts == ["api", "estop"]:
                     return self._json(c.estop(self._body()))
                 if len(parts) == 4 and parts[:2] == ["api", "robots"]:

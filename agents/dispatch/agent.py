@@ -243,6 +243,7 @@ class FleetWorker:
         self.active: Task | None = None
         self.dispatcher = ""  # the agent whose calls it answers (the first that awards it anything)
         self.done: list[str] = []  # tasks it performed, in order
+        self.heading_to: tuple[float, float] | None = None  # the point its active task drives to next
         self._wake: asyncio.Event | None = None
         self._doing: asyncio.Future | None = None
         self._warned: set = set()
@@ -349,6 +350,7 @@ class FleetWorker:
             FleetMsg(
                 "status", robot=self.robot, x=p[0], y=p[1], battery=-1.0 if b is None else min(1.0, max(0.0, b)),  # type: ignore[attr-defined]
                 charging=self.charging(), queue=ids, active=self.active.id if self.active else "",
+                target=tuple(self.heading_to) if self.active is not None and self.heading_to is not None else (),
             )
         )  # fmt: skip
 
@@ -368,13 +370,14 @@ class FleetWorker:
             except asyncio.CancelledError:
                 if not self._doing.cancelled() or self.state != "running":  # type: ignore[attr-defined]
                     raise  # the worker itself is stopped
-                self.active = None
+                self.active = self.heading_to = None
                 await self.abandon(task)
                 continue
             except Exception as e:
                 log.exception("%s: task %s failed", self.id, task.id)  # type: ignore[attr-defined]
                 reason = f"{type(e).__name__}: {e}"
             self.active = None
+            self.heading_to = None
             if reason:
                 self._fleet(FleetMsg("progress", task_id=task.id, state="failed", reason=reason))
             else:
@@ -462,6 +465,7 @@ class FleetAgent(FleetWorker, NavAgent):
         a = task.args
         for x, y in places(task):
             yaw = float(a.get("yaw", 0.0)) if task.kind in ("go_to", "charge") else 0.0
+            self.heading_to = (x, y)
             res = await self.goto(x, y, yaw, report=False)
             if not res.ok:
                 return f"goal ({x:.2f}, {y:.2f}) {res.status}: {res.message}"

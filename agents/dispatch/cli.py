@@ -14,7 +14,6 @@ import argparse
 import asyncio
 import os
 import sys
-import uuid
 
 from rsal.cliutil import positive
 from rsal.clock import wait_for
@@ -22,6 +21,7 @@ from rsal.transport import TransportArgs, add_transport_args
 
 from ..runtime import Agent, AgentHost
 from ..services import Message
+from .client import cancel_request, list_request, submit_request
 from .tasks import KINDS, TaskRequest, TaskState, TaskStatus
 
 __all__ = ["register", "main"]
@@ -59,7 +59,7 @@ async def _run(args: argparse.Namespace) -> int:
                     "('rsal agent DispatcherAgent') or check the endpoint (--connect)"
                 )
         if args.op == "list":
-            conv = me.publish(TaskRequest.SERVICE, TaskRequest("list"))
+            conv = me.publish(TaskRequest.SERVICE, list_request())
             rows: dict[str, TaskStatus] = {}
             while True:
                 try:
@@ -75,11 +75,11 @@ async def _run(args: argparse.Namespace) -> int:
             return 0
         if args.op == "cancel":
             tid = args.task_id
-            me.publish(TaskRequest.SERVICE, TaskRequest("cancel", task_id=tid))
+            me.publish(TaskRequest.SERVICE, cancel_request(tid))
         else:
-            tid = args.id or f"cli-{uuid.uuid4().hex[:8]}"
-            task = {"id": tid, "kind": args.kind, "args": dict(args.arg or []), "robot": args.robot or ""}
-            me.publish(TaskRequest.SERVICE, TaskRequest("submit", task=task))
+            req = submit_request(args.kind, dict(args.arg or []), args.robot or "", args.id or "")
+            tid = req.task["id"]
+            me.publish(TaskRequest.SERVICE, req)
         while True:
             follow = getattr(args, "follow", False)
             left = deadline - loop.time() if not follow else None

@@ -38,7 +38,18 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from .tasks import DispatchMsg, FleetMsg, Refusal, Task, TaskRefused, TaskState, TaskStatus, parse_task, task_places
+from .tasks import (
+    DispatchMsg,
+    FleetMsg,
+    Refusal,
+    Task,
+    TaskRefused,
+    TaskState,
+    TaskStatus,
+    parse_task,
+    task_outline,
+    task_places,
+)
 
 __all__ = ["Charger", "ChargePolicy", "Dispatcher", "RobotRecord", "TaskRecord", "FINISHING"]
 
@@ -481,15 +492,18 @@ class Dispatcher:
         robot = rec.robot
         self._set(rec, state, robot, reason, text)
 
+    @staticmethod
+    def _state_of(rec: TaskRecord, text: str) -> TaskStatus:
+        t = rec.task
+        places = tuple(task_outline(t))
+        return TaskStatus(t.id, t.kind, rec.state.value, rec.robot, rec.reason, text, rec.requester, places)
+
     def _status(self, rec: TaskRecord, text: str) -> None:
-        self.send(TaskStatus(rec.task.id, rec.task.kind, rec.state.value, rec.robot, rec.reason, text, rec.requester))
+        self.send(self._state_of(rec, text))
 
     def statuses(self) -> list[TaskStatus]:
         """Every task's current state (for ``list``)."""
-        return [
-            TaskStatus(r.task.id, r.task.kind, r.state.value, r.robot, r.reason, "", r.requester)
-            for r in self.tasks.values()
-        ]
+        return [self._state_of(r, "") for r in self.tasks.values()]
 
     def places(self, task_id: str) -> list[tuple[float, float]]:
         return task_places(self.tasks[task_id].task)

@@ -46,6 +46,7 @@ __all__ = [
     "Task",
     "parse_task",
     "task_places",
+    "task_outline",
     "TaskRequest",
     "TaskStatus",
     "DispatchMsg",
@@ -201,12 +202,37 @@ def task_places(task: Task) -> list[tuple[float, float]]:
     return [tuple(a["at"])]
 
 
+def task_outline(task: Task) -> list[tuple[float, float]]:
+    """The points to draw for a task: :func:`task_places` with a patrol route once (not once per
+    lap); the places a ``task_state`` carries for views (``rsal watch``, the control center)."""
+    if task.kind == "patrol":
+        return [(float(p[0]), float(p[1])) for p in task.args["route"]]
+    return [(float(x), float(y)) for x, y in task_places(task)]
+
+
+def _points(m: dict, name: str) -> tuple[tuple[float, float], ...]:
+    v = m.get(name, [])
+    if not isinstance(v, (list, tuple)):
+        raise MessageError(f"field {name!r} must be a list of points [x, y]")
+    out = []
+    for p in v:
+        ok = isinstance(p, (list, tuple)) and len(p) == 2
+        if not ok or not all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in p):
+            raise MessageError(f"field {name!r} must be a list of points [x, y] (finite metres), got {p!r}")
+        out.append((float(p[0]), float(p[1])))
+    return tuple(out)
+
+
 # ---------------------------------------------------------------------------- wire bodies
 class _Body:
     SERVICE: ClassVar[str] = ""
 
     def to_dict(self) -> dict:
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+        return {k: (_plain(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+
+
+def _plain(v):
+    return [_plain(x) for x in v] if isinstance(v, (tuple, list)) else v
 
 
 def _map(m: dict, name: str) -> dict:
@@ -244,7 +270,9 @@ class TaskRequest(_Body):
 class TaskStatus(_Body):
     """``task_state``: task ``task_id`` of ``kind`` is now ``state`` (a :class:`TaskState`), on
     ``robot`` (``""`` while none); ``reason`` (a :class:`Refusal` value) when refused or failed;
-    ``text`` one human-readable line; ``requester`` the agent that submitted it."""
+    ``text`` one human-readable line; ``requester`` the agent that submitted it; ``places`` the
+    task's points in the map frame (:func:`task_outline`: a patrol's route once, a charge task's
+    charger once chosen; empty for a refused task), for views to draw."""
 
     task_id: str
     kind: str
@@ -253,6 +281,7 @@ class TaskStatus(_Body):
     reason: str = ""
     text: str = ""
     requester: str = ""
+    places: tuple[tuple[float, float], ...] = ()
 
     SERVICE: ClassVar[str] = "task_state"
 
@@ -266,6 +295,7 @@ class TaskStatus(_Body):
             get_str(m, "reason", ""),
             get_str(m, "text", ""),
             get_str(m, "requester", ""),
+            _points(m, "places"),
         )
 
 
@@ -316,7 +346,8 @@ class FleetMsg(_Body):
     - ``progress``: ``task_id`` is now ``state`` (``active``, ``done``, ``failed``, ``forfeit``),
       ``reason`` when it is not done;
     - ``status``: the robot (``robot``, its pose ``x``, ``y``), its ``battery`` (0..1; -1: no
-      battery model), ``charging``, its ``queue`` (task ids, the active one first) and ``active``.
+      battery model), ``charging``, its ``queue`` (task ids, the active one first), ``active`` and
+      ``target`` (the point [x, y] its active task drives to next; empty when none).
     """
 
     op: str
@@ -334,6 +365,7 @@ class FleetMsg(_Body):
     charging: bool = False
     queue: tuple[str, ...] = ()
     active: str = ""
+    target: tuple[float, ...] = ()
 
     SERVICE: ClassVar[str] = "fleet"
     OPS: ClassVar[tuple[str, ...]] = ("bid", "refuse", "progress", "status")
@@ -362,6 +394,8 @@ class FleetMsg(_Body):
             kw["charging"] = get_bool(m, "charging", False)
             kw["queue"] = _strs(m, "queue")
             kw["active"] = get_str(m, "active", "")
+            t = m.get("target", [])
+            kw["target"] = _points({"target": [t]}, "target")[0] if t else ()
         return cls(op, **kw)
 
 

@@ -15,7 +15,9 @@ viewer, the bundled web viewer, or an ``.rrd`` file):
   the current waypoint and goal, bumper segments (red while pressed), lines to the fiducials a
   finder sees with their ids, optionally AMCL particles (``get_particles``);
 - agent service messages (``svc/**``), device events and joins as text logs, and per-robot time
-  series: speed, localization error (where ground truth exists), battery.
+  series: speed, localization error (where ground truth exists), battery;
+- the fleet dispatcher's tasks (``task_state``), coloured by state, with a line from each robot to
+  its active task's next point; ended tasks leave the map after ``--task-hold`` seconds.
 
 Samples wait in Zenoh's ring buffers (no Python runs per sample on Zenoh's threads); one logger
 thread ticks at a fixed rate, drains them into a latest-wins dict (one sample per device), decodes
@@ -26,7 +28,8 @@ fall behind. Entity paths are documented in ``docs/watch.md`` and stay stable.
 Modules: :mod:`~rsal.watch.subscriptions` (the intake), :mod:`~rsal.watch.app` (the logger,
 :class:`Watcher`), :mod:`~rsal.watch.draw` (one drawing hook per interface, found by the interface's
 name; interfaces without one are logged as their registry summary), :mod:`~rsal.watch.convert`
-(pure conversions), :mod:`~rsal.watch.state` (options, per-robot state), :mod:`~rsal.watch.cli`
+(pure conversions), :mod:`~rsal.watch.tasks` (the dispatcher's tasks),
+:mod:`~rsal.watch.state` (options, per-robot state), :mod:`~rsal.watch.cli`
 (the command). The package imports nothing above the RSAL layer: service messages are read as plain
 msgpack maps.
 """

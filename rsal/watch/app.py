@@ -4,7 +4,8 @@ One thread ticks at ``--rate``: it drains the intake (:mod:`rsal.watch.subscript
 device joins and rpc replies (``describe`` geometry, maps, ground-truth poses from the
 simulation, planner waypoints, AMCL particles), hands the newest data message of each device to
 its interface's drawing hook (:mod:`rsal.watch.draw`), moves the robots' footprints and logs
-service messages and events as text. Scans are downsampled (every k-th beam, at most
+service messages and events as text, and draws the fleet dispatcher's tasks
+(:mod:`rsal.watch.tasks`). Scans are downsampled (every k-th beam, at most
 ``--scan-rate`` per second per device), so a 100-robot fleet at full rate does not make it fall
 behind. Entity paths: ``docs/watch.md``.
 """
@@ -42,6 +43,7 @@ from .convert import (
 )
 from .state import RobotView, WatchOptions
 from .subscriptions import Subscriptions
+from .tasks import TaskView, robot_link, task_log
 
 __all__ = ["Watcher"]
 
@@ -77,6 +79,7 @@ class Watcher(Subscriptions):
         self._particles_next = -math.inf
         self._sim_time: float | None = None
         self._scan_nodes: set[str] = set()  # nodes with a laser or sonar device
+        self._tasks = TaskView(opts.task_hold)
         self._stop = threading.Event()
         self.t0 = time.monotonic()
 
@@ -87,7 +90,7 @@ class Watcher(Subscriptions):
 
     def setup(self) -> None:
         rr = self.rr
-        for p in ("world/robots", "world/blobs"):
+        for p in ("world/robots", "world/blobs", "world/tasks"):
             self.log(p, rr.Transform3D(scale=FLIP), static=True)
         self.log(
             "log/watch",
@@ -194,6 +197,10 @@ class Watcher(Subscriptions):
         self._emit_robots()
         self._poll(now_wall)
         self._drain_text(rr)
+        for tid in self._tasks.unlink():
+            self.log(entity("world", "tasks", tid, "link"), rr.Clear(recursive=False))
+        for tid in self._tasks.expired(time.monotonic()):
+            self.log(entity("world", "tasks", tid), rr.Clear(recursive=True))
 
     def _bad(self, where: str, e: Exception) -> None:
         """Count and log (rate-limited) a sample or reply that could not be used; carry on."""
@@ -422,6 +429,10 @@ class Watcher(Subscriptions):
                 body = ", ".join(f"{k}={_short(v)}" for k, v in m.items())
                 level = "WARN" if service == "outcome" and m.get("ok") is False else "INFO"
                 self.log(entity("log", "services", service), rr.TextLog(f"{sender} [{conv}] {body}", level=level))
+                if service == "task_state":
+                    self._task_state(rr, m)
+                elif service == "fleet":
+                    self._fleet_link(rr, m)
             else:
                 parsed = self._parse(key)
                 if parsed is None:
@@ -429,6 +440,31 @@ class Watcher(Subscriptions):
                 addr = parsed[0]
                 body = ", ".join(f"{k}={_short(v)}" for k, v in m.items())
                 self.log(entity("log", "events", addr.node), rr.TextLog(f"{addr}: {body}", level="INFO"))
+
+    # ------------------------------------------------------------------ dispatcher tasks
+    def _task_state(self, rr, m: dict) -> None:
+        """A ``task_state``: the task redrawn at ``world/tasks/<id>`` and a ``log/tasks`` entry."""
+        text, level = task_log(m)
+        self.log("log/tasks", rr.TextLog(text, level=level))
+        d = self._tasks.state(m, time.monotonic())
+        if d is None:
+            return
+        path = entity("world", "tasks", d.task_id)
+        if len(d.points):
+            labels = [d.label] + [""] * (len(d.points) - 1)
+            self.log(path, rr.Points2D(d.points, radii=0.12, colors=d.color, labels=labels))
+        if d.strip is not None:
+            self.log(path + "/route", rr.LineStrips2D([d.strip], radii=0.03, colors=d.color))
+
+    def _fleet_link(self, rr, m: dict) -> None:
+        """A robot's ``fleet`` status: the line from the robot (its true pose where the view has
+        it) to the next point of its active task."""
+        rb = self._robots.get(str(m.get("robot", "")))
+        truth = rb.truth() if rb is not None else None
+        got = robot_link(m, None if truth is None else (float(truth[0]), float(truth[1])))
+        if got is not None and self._tasks.link(got[0]):
+            color = self.robot(str(m.get("robot"))).color if m.get("robot") else GREEN
+            self.log(entity("world", "tasks", got[0], "link"), rr.LineStrips2D([got[1]], radii=0.02, colors=color))
 
 
 def _short(v: Any) -> str:

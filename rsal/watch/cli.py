@@ -50,6 +50,7 @@ def run_watch(args: argparse.Namespace) -> int:
         particles_rate=args.particles_rate,
         services=not args.no_services,
         report_every=args.report_every,
+        task_hold=args.task_hold,
     )
     try:
         opts.check()
@@ -166,6 +167,9 @@ def register(sub) -> None:
     p.add_argument("--particles", action="store_true", help="also log AMCL particles (rpc get_particles)")
     p.add_argument("--particles-rate", type=float, default=1.0, help="particle polls per second (default 1)")
     p.add_argument("--no-services", action="store_true", help="do not log agent service messages")
+    p.add_argument(
+        "--task-hold", type=float, default=5.0, help="seconds an ended dispatcher task stays on the map (default 5)"
+    )
     p.add_argument("--report-every", type=float, default=5.0, help="seconds between progress lines (default 5)")
     add_transport_args(p)
     p.set_defaults(func=run_watch)

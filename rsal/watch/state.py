@@ -29,8 +29,11 @@ class WatchOptions:
     max_text: int = 200  # text log entries per tick, at most
     ring: int = 8192  # samples a Zenoh ring buffer holds between two ticks
     report_every: float = 5.0
+    task_hold: float = 5.0  # seconds an ended dispatcher task stays on the map
 
     def check(self) -> None:
+        if not (isinstance(self.task_hold, (int, float)) and math.isfinite(self.task_hold) and self.task_hold >= 0):
+            raise ValueError(f"--task-hold {self.task_hold!r} must be a number of seconds >= 0")
         for name in ("rate", "scan_rate", "truth_rate", "plot_rate", "particles_rate", "report_every"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):

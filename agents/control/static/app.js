@@ -1,5 +1,5 @@
 // rsal control: the control center page (thesis 3.4.2, 5.2.3). Polls /api/state every 0.5 s and
-// renders scenarios, runs, agents, devices, robots on the map and the Rerun view; the JSON API is
+// renders scenarios, runs, agents, devices, the dispatcher's tasks, robots on the map and the Rerun view; the JSON API is
 // described in docs/control.md.
 "use strict";
 
@@ -162,6 +162,82 @@ function renderList(ul, items, attr) {
     // keep the list sorted
     const next = [...ul.children].find((x) => x.dataset[attr] > it);
     ul.insertBefore(li, next || null);
+  }
+}
+
+// ------------------------------------------------------------------ tasks
+function showTaskForm() {
+  const kind = $("#task-kind").value;
+  for (const k of ["go_to", "charge", "patrol"]) $(`.kind-${k}`).hidden = k !== kind;
+}
+
+async function submitTask() {
+  const kind = $("#task-kind").value;
+  const body = { kind };
+  if (kind === "go_to") {
+    body.x = Number($("#task-x").value);
+    body.y = Number($("#task-y").value);
+  } else if (kind === "charge") {
+    if ($("#task-charger").value) body.charger = $("#task-charger").value;
+  } else {
+    body.route = $("#task-route").value;
+    body.laps = Number($("#task-laps").value) || 1;
+  }
+  if ($("#task-robot").value) body.robot = $("#task-robot").value.trim();
+  $("#task-error").textContent = "";
+  try {
+    await api("POST", "/api/tasks", body);
+    pollTasks();
+  } catch (e) {
+    $("#task-error").textContent = e.message;
+  }
+}
+
+async function cancelTask(id, button) {
+  button.disabled = true;
+  try {
+    await api("POST", `/api/tasks/${encodeURIComponent(id)}/cancel`, {});
+  } catch (e) {
+    $("#task-error").textContent = e.message;
+  }
+}
+
+function renderTasks(tasks) {
+  const body = $("#tasks tbody");
+  const want = new Set(tasks.map((t) => t.id));
+  for (const tr of [...body.children]) if (!want.has(tr.dataset.task)) tr.remove();
+  for (const t of tasks) {
+    let tr = [...body.children].find((x) => x.dataset.task === t.id);
+    if (!tr) {
+      tr = el("tr");
+      tr.dataset.task = t.id;
+      for (let i = 0; i < 5; i++) tr.append(el("td"));
+      const b = el("button", { class: "cancel" }, "Cancel");
+      b.addEventListener("click", () => cancelTask(t.id, b));
+      const td = el("td");
+      td.append(b);
+      tr.append(td);
+      body.append(tr);
+    }
+    const cells = tr.children;
+    cells[0].textContent = t.id;
+    cells[1].textContent = t.kind;
+    cells[2].textContent = t.state;
+    cells[2].className = `taskstate ${t.state}`;
+    cells[2].title = [t.states.join(" → "), t.text].filter(Boolean).join("\n");
+    cells[3].textContent = t.robot || "–";
+    cells[4].textContent = `${Math.round(t.age)} s`;
+    tr.querySelector("button.cancel").disabled = t.final;
+  }
+  $("#task-count").textContent = `(${tasks.filter((t) => !t.final).length} live)`;
+  $("#tasks-empty").hidden = tasks.length > 0;
+}
+
+async function pollTasks() {
+  try {
+    renderTasks((await api("GET", "/api/tasks")).tasks);
+  } catch (e) {
+    $("#task-error").textContent = `tasks: ${e.message}`;
   }
 }
 
@@ -382,6 +458,7 @@ async function poll() {
   renderWatch(state.watch);
   refreshMap(state.maps);
   draw();
+  pollTasks();
 }
 
 window.addEventListener("load", () => {
@@ -396,6 +473,8 @@ window.addEventListener("load", () => {
   $("#estop-all").addEventListener("click", () => estopAll(false));
   $("#estop-release-all").addEventListener("click", () => estopAll(true));
   $("#robot-wallfollow").addEventListener("click", (ev) => robotAction("wallfollow", { on: !ev.target.dataset.on }));
+  $("#task-kind").addEventListener("change", showTaskForm);
+  $("#task-submit").addEventListener("click", submitTask);
   setupMap();
   loadScenarios().catch((e) => ($("#start-error").textContent = e.message));
   poll();
