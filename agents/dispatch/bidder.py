@@ -8,6 +8,13 @@ task after it; the bid is the cheapest place. Travel is ``travel(a, b)`` seconds
 ``None`` for unreachable). All places are evaluated at once with numpy: one array per queue, no
 Python loop over the places.
 
+Path travel (:class:`PathTravel`): where the robot has a global planner (``wavefront``'s
+``planner:0``), a leg costs the length of the planner's path (``rpc/plan``: planned, not driven)
+over ``speed``, so a goal behind a wall is costed by the way around it; no path is ``None``
+(unreachable). A planner without ``plan`` makes every leg a straight line, and the robot says so
+once; a planner that cannot answer now (no map yet, a timeout) costs that leg as a straight line.
+Lengths are cached per pair of points (to the centimetre; at most ``cache`` pairs).
+
 Battery (:class:`Energy`): a robot with a battery model adds the time to recharge when the plan
 with the new task would bring its charge below the dispatcher's threshold: that plan includes a
 detour to charge, as Open-RMF's planner inserts charging tasks.
@@ -15,15 +22,21 @@ detour to charge, as Open-RMF's planner inserts charging tasks.
 
 from __future__ import annotations
 
+import logging
 import math
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from rsal.msgs import ErrorCode, RpcError
+
 from .tasks import Task, task_places
 
-__all__ = ["Bid", "Energy", "estimate", "plan_bid"]
+__all__ = ["Bid", "Energy", "PathTravel", "estimate", "plan_bid"]
+
+log = logging.getLogger(__name__)
 
 Point = tuple[float, float]
 
@@ -49,6 +62,53 @@ class Bid:
     delay: float
     index: int
     charge: float = 0.0
+
+
+class PathTravel:
+    """``travel(a, b)``: seconds from ``a`` to ``b`` along the planner's path at ``speed`` (module
+    docstring). ``plan(a, b)`` returns the path length in metres or raises :class:`RpcError`
+    (e.g. ``lambda a, b: planner.plan(b, start=a)["length"]``); ``owner`` names the robot in what
+    it says. ``straight`` is true once the planner turned out to have no ``plan``."""
+
+    def __init__(self, plan: Callable[[Point, Point], float], speed: float, owner: str = "", cache: int = 4096):
+        if not speed > 0:
+            raise ValueError(f"speed {speed!r} must be positive (m/s)")
+        self.plan, self.speed, self.owner, self.size = plan, float(speed), owner, int(cache)
+        self.straight = False
+        self.asked = 0  # plans asked of the planner (cache misses)
+        self._cache: OrderedDict[tuple, float | None] = OrderedDict()
+        self._said: set[str] = set()
+
+    def _say(self, topic: str, text: str) -> None:
+        if topic not in self._said:
+            self._said.add(topic)
+            log.warning("%s: %s", self.owner or "bidder", text)
+
+    def __call__(self, a: Point, b: Point) -> float | None:
+        line = math.hypot(b[0] - a[0], b[1] - a[1])
+        if self.straight or line < 1e-3:
+            return line / self.speed
+        key = (round(a[0], 2), round(a[1], 2), round(b[0], 2), round(b[1], 2))
+        if key in self._cache:
+            self._cache.move_to_end(key)
+            return self._cache[key]
+        self.asked += 1
+        try:
+            t: float | None = float(self.plan(a, b)) / self.speed
+        except RpcError as e:
+            if e.code == ErrorCode.NOT_FOUND:
+                t = None  # no path: unreachable
+            elif e.code == ErrorCode.UNKNOWN_OP:
+                self.straight = True
+                self._say("no_plan", f"the planner cannot plan without driving ({e}); bids use straight lines")
+                return line / self.speed
+            else:  # no map yet, a timeout: this leg as a straight line, not remembered
+                self._say("unavailable", f"the planner did not answer a plan ({e}); that leg bid as a straight line")
+                return line / self.speed
+        self._cache[key] = t
+        if len(self._cache) > self.size:
+            self._cache.popitem(last=False)
+        return t
 
 
 def estimate(

@@ -23,7 +23,10 @@ than ``replan_dist_thresh`` from the path, at most every ``replan_min_time`` sec
 
 Data: :class:`rsal.msgs.PlannerData` at ``rate`` Hz (status, pose, goal, current waypoint, index
 and count). Events: ``{"event": "done" | "aborted", "goal_id", "message"}``. Operations:
-``set_goal``, ``stop``, ``resume``, ``waypoints``. Other parameters: ``robot_radius`` (m, default
+``set_goal``, ``stop``, ``resume``, ``waypoints`` and ``plan`` (a plan from ``start`` [x, y] -- default
+the localized pose -- to ``goal`` [x, y], its ``length`` and ``waypoints``, made on a clone of the
+planner that shares its configuration space, so the goal being driven is untouched: what a fleet
+robot's bid costs, ``docs/dispatch.md``). Other parameters: ``robot_radius`` (m, default
 from the output device's size), ``max_radius`` and ``dist_penalty`` (corridor-centring cost),
 ``replan_dist_thresh`` (m), ``replan_min_time`` (s); ``cspace_file``, ``force_map_refresh``,
 ``alwayson``, ``add_rotational_waypoints`` are accepted and have no effect.
@@ -97,6 +100,7 @@ class WavefrontDriver(Driver):
         self.robot_radius = p.robot_radius
         self.max_radius, self.dist_penalty = p.max_radius, p.dist_penalty
         self.exec = None
+        self._probe = None  # a clone of the planner for rpc/plan (shares the configuration space)
         self.map_info = None
         self.loc = None  # localized pose (map)
         self.odom = None  # odometry pose of the local planner's base
@@ -264,7 +268,7 @@ class WavefrontDriver(Driver):
 
     # ------------------------------------------------------------------ operations
     def ops(self, addr):
-        return ["set_goal", "stop", "resume", "waypoints"]
+        return ["set_goal", "stop", "resume", "waypoints", "plan"]
 
     def on_rpc(self, addr, op, args):
         from ..nav.wavefront import PlanError
@@ -309,12 +313,37 @@ class WavefrontDriver(Driver):
                 raise RpcError(ErrorCode.UNAVAILABLE, f"cannot resume: {ex.error}")
             self.handover.reset()
             return {"status": st, "goal_id": self.goal_id}
+        if op == "plan":
+            return self._probe_plan(addr, args)
         if op == "waypoints":
             if ex is None or ex.plan is None:
                 return {"waypoints": []}
             wp = ex.plan.waypoints
             return {"waypoints": [[float(x), float(y), 0.0] for x, y in wp], "length": float(ex.plan.length)}
         return super().on_rpc(addr, op, args)
+
+    def _probe_plan(self, addr, args) -> dict:
+        """``plan``: a path without driving it (its own search state; the executive's is untouched)."""
+        from ..nav.wavefront import PlanError
+
+        if self.exec is None:
+            raise RpcError(ErrorCode.UNAVAILABLE, f"{addr}: no map yet; try again in a moment")
+        goal = get_vec(args, "goal", 2)
+        if args.get("start") is None:
+            if self.loc is None:
+                why = f"no 'start' and no localized pose yet from {self.in_addr}"
+                raise RpcError(ErrorCode.UNAVAILABLE, f"{addr}: {why}")
+            start = (float(self.loc[0]), float(self.loc[1]))
+        else:
+            start = get_vec(args, "start", 2)
+        if self._probe is None:
+            self._probe = self.exec.planner.clone()
+        try:
+            plan = self._probe.plan(start, goal)
+        except PlanError as e:
+            raise RpcError(ErrorCode.NOT_FOUND, f"no plan: {e}") from None
+        wp = [[float(x), float(y)] for x, y in plan.waypoints]
+        return {"length": float(plan.length), "waypoints": wp}
 
     def shutdown(self) -> None:
         try:

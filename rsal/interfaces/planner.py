@@ -93,6 +93,15 @@ class Planner(Device):
     def waypoints(self, timeout: float = 5.0) -> list[Position]:
         return [Position(*w) for w in self.rpc("waypoints", timeout=timeout)["waypoints"]]
 
+    def plan(self, goal: tuple[float, float], start: tuple[float, float] | None = None, timeout: float = 5.0) -> dict:
+        """A plan from ``start`` (default: the localized pose) to ``goal`` without driving it
+        (``rpc/plan``): ``{"length": m, "waypoints": [[x, y], ...]}``. Raises
+        :class:`~rsal.RpcError`: ``not_found`` when there is no path, ``unavailable`` before the map."""
+        args: dict = {"goal": [float(goal[0]), float(goal[1])]}
+        if start is not None:
+            args["start"] = [float(start[0]), float(start[1])]
+        return self.rpc("plan", timeout=timeout, **args)
+
     def set_goal(self, goal: Position, timeout: float = 5.0) -> Future:
         """Plan to ``goal`` and drive there. The future resolves to "done" or raises RpcError."""
         fut: Future = Future()

@@ -106,3 +106,28 @@ def test_every_goal_ends_with_one_event(driver):
     # a goal set after a done goal supersedes nothing
     drv.on_rpc(planner, "set_goal", {"goal": [1.0, 1.0, 0.0]})
     assert len(srv.events) == 2
+
+
+def test_plan_answers_a_path_without_driving_it(driver):
+    drv, srv = driver
+    planner = drv.cfg.provides[0]
+    drv.on_rpc(planner, "set_goal", {"goal": [5.0, 3.0, 0.0]})
+    sent, driving = len(srv.sent), drv.exec.plan
+    r = drv.on_rpc(planner, "plan", {"start": [1.0, 3.0], "goal": [5.0, 1.0]})
+    assert r["length"] == pytest.approx(math.hypot(4.0, 2.0), rel=1e-6) and r["waypoints"][0] == [1.0, 3.0]
+    assert drv.on_rpc(planner, "plan", {"goal": [5.0, 1.0]})["waypoints"][0] == [1.0, 1.0]  # from the pose
+    # the goal being driven is untouched: same plan, nothing sent, still driving
+    assert drv.exec.plan is driving and len(srv.sent) == sent and drv.exec.status == "driving"
+    with pytest.raises(RpcError) as e:
+        drv.on_rpc(planner, "plan", {"start": [1.0, 1.0], "goal": [50.0, 1.0]})
+    assert e.value.code == ErrorCode.NOT_FOUND and "outside the map" in e.value.message
+    assert "plan" in drv.ops(planner)
+
+
+def test_plan_before_the_map_is_unavailable():
+    cfg = parse_config(CONFIG, source="wavefront.toml").drivers[0]
+    drv = WavefrontDriver(cfg, FakeServer())
+    drv.setup()
+    with pytest.raises(RpcError) as e:
+        drv.on_rpc(cfg.provides[0], "plan", {"start": [1.0, 1.0], "goal": [2.0, 1.0]})
+    assert e.value.code == ErrorCode.UNAVAILABLE and "no map yet" in e.value.message
