@@ -7,7 +7,7 @@ agent's, exactly as ``rsal task`` does: the messages are built by :mod:`agents.d
 (the code ``rsal task`` uses), and every ``task_state`` feeds a
 :class:`~agents.dispatch.client.TaskBoard` that ``GET /api/tasks`` lists (id, kind, state, robot,
 age, the states in order). On start it asks the dispatcher for the tasks it already knows
-(``list``). ``POST /api/tasks`` submits (go_to with ``x``, ``y``; charge; patrol with a ``route``
+(``list``, again 2 s later). ``POST /api/tasks`` submits (go_to with ``x``, ``y``; charge; patrol with a ``route``
 typed as text; or any kind with ``args``) and answers with the task's first state, or the
 dispatcher's refusal as HTTP 400; ``POST /api/tasks/<id>/cancel`` cancels.
 """
@@ -84,6 +84,14 @@ class TaskDesk(Agent):
     async def created(self) -> None:
         self.subscribe(TaskStatus.SERVICE, self._on_state)
         self.publish(TaskRequest.SERVICE, list_request())
+        self._require_host().spawn(self._list_again(), f"{self.id}: list")
+
+    async def _list_again(self) -> None:
+        """Ask once more after 2 s: a session that just joined a running fabric may not have had
+        its routes to the dispatcher when the first ``list`` went out."""
+        await asyncio.sleep(2.0)
+        if self.state == "running":
+            self.publish(TaskRequest.SERVICE, list_request())
 
     def _on_state(self, msg: Message) -> None:
         try:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -77,11 +78,14 @@ class PathTravel:
         self.straight = False
         self.asked = 0  # plans asked of the planner (cache misses)
         self._cache: OrderedDict[tuple, float | None] = OrderedDict()
+        self._lock = threading.Lock()  # bids of two calls may run on two worker threads
         self._said: set[str] = set()
 
     def _say(self, topic: str, text: str) -> None:
-        if topic not in self._said:
+        with self._lock:
+            new = topic not in self._said
             self._said.add(topic)
+        if new:
             log.warning("%s: %s", self.owner or "bidder", text)
 
     def __call__(self, a: Point, b: Point) -> float | None:
@@ -89,10 +93,11 @@ class PathTravel:
         if self.straight or line < 1e-3:
             return line / self.speed
         key = (round(a[0], 2), round(a[1], 2), round(b[0], 2), round(b[1], 2))
-        if key in self._cache:
-            self._cache.move_to_end(key)
-            return self._cache[key]
-        self.asked += 1
+        with self._lock:
+            if key in self._cache:
+                self._cache.move_to_end(key)
+                return self._cache[key]
+            self.asked += 1
         try:
             t: float | None = float(self.plan(a, b)) / self.speed
         except RpcError as e:
@@ -105,9 +110,10 @@ class PathTravel:
             else:  # no map yet, a timeout: this leg as a straight line, not remembered
                 self._say("unavailable", f"the planner did not answer a plan ({e}); that leg bid as a straight line")
                 return line / self.speed
-        self._cache[key] = t
-        if len(self._cache) > self.size:
-            self._cache.popitem(last=False)
+        with self._lock:
+            self._cache[key] = t
+            if len(self._cache) > self.size:
+                self._cache.popitem(last=False)
         return t
 
 
