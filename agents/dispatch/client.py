@@ -5,9 +5,9 @@ control center's Tasks panel (:mod:`agents.control.tasks`).
 :class:`TaskBoard` is the live list of tasks a person watches: every ``task_state``
 (:class:`~agents.dispatch.tasks.TaskStatus`) updates its task's row (state, robot, reason, the
 states it went through in order); a task that ended (``done``, ``failed``, ``cancelled``,
-``refused``) stays ``hold`` seconds, then leaves. It has no network and reads time from the caller
-(``now``), so it is unit-tested alone; it is thread-safe, and :meth:`TaskBoard.wait` lets a
-caller wait (with a deadline) for a task to reach a state.
+``refused``) stays ``hold`` seconds, then leaves, showing the robot it was last on. It has no
+network and reads time from the caller (``now``), so it is unit-tested alone; it is thread-safe,
+and :meth:`TaskBoard.wait` lets a caller wait (with a deadline) for a task to reach a state.
 """
 
 from __future__ import annotations
@@ -122,12 +122,14 @@ class TaskBoard:
                 row = self._rows[st.task_id] = TaskRow(st.task_id, st.kind, st.state, first_seen=now)
             if not row.states or row.states[-1] != st.state:
                 row.states.append(st.state)
-            row.state, row.robot, row.reason = st.state, st.robot, st.reason
+            final = TaskState(st.state).final
+            # an ended task keeps the robot it was last on (a cancel or re-bid may clear it)
+            row.robot = st.robot or (row.robot if final else "")
+            row.state, row.reason = st.state, st.reason
             row.kind = st.kind or row.kind
             row.text = st.text or row.text
             row.requester = st.requester or row.requester
             row.places = st.places or row.places
-            final = TaskState(st.state).final
             row.ended_at = (now if row.ended_at == math.inf else row.ended_at) if final else math.inf
             self._cond.notify_all()
             return row

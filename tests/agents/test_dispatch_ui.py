@@ -48,8 +48,9 @@ def test_the_board_lists_live_tasks_with_their_states_in_order_and_age():
 def test_ended_tasks_stay_for_the_hold_then_leave():
     b = TaskBoard(hold=10.0)
     b.apply(_st("t1", "bidding"), 0.0)
-    b.apply(_st("t1", "done", "fleet0"), 5.0)
-    assert b.rows(15.0)[0]["final"] is True
+    b.apply(_st("t1", "active", "fleet0"), 1.0)
+    b.apply(_st("t1", "cancelled"), 5.0)  # the dispatcher's cancel names no robot
+    assert b.rows(15.0)[0]["final"] is True and b.rows(15.0)[0]["robot"] == "fleet0"
     assert b.rows(15.1) == []
     b.apply(_st("t2", "failed"), 0.0)
     b.apply(_st("t2", "bidding"), 1.0)  # re-bid: alive again
@@ -200,7 +201,7 @@ def test_control_lists_a_submitted_tasks_states_in_order_and_cancels_one(procs, 
         wait_until(lambda: row(b["id"], "active"), 30, "the panel's task active")
         status, c = call(base, "POST", f"/api/tasks/{b['id']}/cancel", body={})
         assert status == 200 and c["state"] == "cancelled", c
-        assert c["states"] == ["bidding", "assigned", "active", "cancelled"]
+        assert c["states"] == ["bidding", "assigned", "active", "cancelled"] and c["robot"] == "fleet0"
         wait_until(lambda: robot.abandoned == [b["id"]], 10, "the robot abandons the cancelled task")
         lt.loop.call_soon_threadsafe(robot.gate.set)
         assert robot.performed == ["a1"]
@@ -217,3 +218,80 @@ def test_control_lists_a_submitted_tasks_states_in_order_and_cancels_one(procs, 
 
 async def _open_host(ep: str) -> AgentHost:
     return AgentHost.connect(TransportArgs(connect=[ep]))
+
+
+@pytest.mark.timeout(180)
+def test_the_page_submits_lists_and_cancels_tasks(procs, tmp_path):
+    """The Tasks panel in a browser (Debian's chromium driven by Playwright, as
+    test_control_browser.py): a go_to from the form is listed until done, a bad route is refused
+    in one line on the page, a patrol under way is cancelled with its button."""
+    from tests.agents.test_control_browser import CHROMIUM, FLAGS, _ensure_chromium, _save
+
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e .[test])")
+    _ensure_chromium()
+    port, fabric = free_port(), f"tcp/127.0.0.1:{free_port()}"
+    ctl = procs(
+        rsal_cmd("control", "--port", str(port), "--listen", fabric, "--no-watch", "--scenarios", str(tmp_path))
+    )
+    procs(rsal_cmd("agent", "DispatcherAgent", "--id", "dispatcher", "--arg", "window=0.3", "--connect", fabric))
+    base = f"http://127.0.0.1:{port}"
+    wait_until(lambda: _up(base), 60, f"rsal control serving on port {port}\n{ctl.output()}", interval=0.2)
+    lt = LoopThread()
+    host = lt.run(_open_host(fabric))
+    try:
+        robot = lt.run(host.start(StandIn("fleet0")))
+        wait_until(lambda: "dispatcher" in call(base, "GET", "/api/state")[1]["agents"], 60, "the dispatcher")
+        with sync_api.sync_playwright() as pw:
+            try:
+                browser = pw.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
+            except Exception as e:  # a chromium that cannot start here: say why
+                pytest.skip(f"{CHROMIUM} does not start headless: {' '.join(str(e).split())[:300]}")
+            try:
+                page = browser.new_page(viewport={"width": 1400, "height": 1000})
+                errors: list[str] = []
+                page.on("pageerror", lambda e: errors.append(str(e)))
+                page.goto(base + "/")
+                page.fill("#task-x", "2")
+                page.fill("#task-y", "1")
+                page.click("#task-submit")
+                page.wait_for_selector("#tasks tr td.taskstate.done", timeout=30_000)
+                row = page.locator("#tasks tbody tr").first
+                assert (
+                    row.locator("td").nth(1).inner_text() == "go_to"
+                    and row.locator("td").nth(3).inner_text() == "fleet0"
+                )
+                assert row.locator("button.cancel").is_disabled()
+                assert robot.performed == [row.get_attribute("data-task")]
+
+                page.select_option("#task-kind", "patrol")
+                assert page.locator("#task-x").is_hidden() and page.locator("#task-route").is_visible()
+                page.fill("#task-route", "1, 0; a, b")
+                page.click("#task-submit")
+                page.wait_for_function(
+                    "() => document.querySelector('#task-error').textContent.includes('route point')"
+                )
+
+                lt.loop.call_soon_threadsafe(robot.gate.clear)
+                page.fill("#task-route", "0, 0; 3, 0; 3, 2")
+                page.click("#task-submit")
+                active = page.locator("#tasks tbody tr", has=page.locator("td.taskstate.active"))
+                active.wait_for(timeout=30_000)
+                tid = active.get_attribute("data-task")
+                active.locator("button.cancel").click()
+                page.wait_for_selector(f"#tasks tr[data-task='{tid}'] td.taskstate.cancelled", timeout=15_000)
+                _save(page, tmp_path, "tasks-panel.png")
+                wait_until(lambda: robot.abandoned == [tid], 10, "the robot abandons the cancelled patrol")
+                assert errors == []
+            finally:
+                browser.close()
+        lt.loop.call_soon_threadsafe(robot.gate.set)
+    finally:
+        lt.run(host.stop())
+        lt.close()
+
+
+def _up(base: str) -> bool:
+    try:
+        return call(base, "GET", "/api/tasks")[0] == 200
+    except OSError:
+        return False
