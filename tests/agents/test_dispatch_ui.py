@@ -113,6 +113,21 @@ def test_the_api_answers_in_one_line_when_it_cannot_send(tmp_path):
         c.cancel_task("x")
 
 
+def test_no_dispatcher_is_one_line_not_a_wait_for_ever(tmp_path, monkeypatch):
+    import agents.control.tasks as ct
+    from agents.control import Control
+
+    monkeypatch.setattr(ct, "ANSWER_WAIT", 0.5)
+    c = Control(tmp_path, "", watch=False)
+    c.open(TransportArgs(listen=[f"tcp/127.0.0.1:{free_port()}"]))
+    try:
+        with pytest.raises(ApiError, match="no DispatcherAgent answered task ctl-.* within 0.5 s") as e:
+            c.submit_task({"kind": "go_to", "x": 1, "y": 1})
+        assert e.value.status == 504 and c.desk_id not in c.state()["agents"]
+    finally:
+        c.close()
+
+
 # ---------------------------------------------------------------------------- real processes
 class StandIn(FleetWorker, Agent):
     """A robot with no body: it performs a task by waiting, and records what it performed."""
