@@ -43,7 +43,15 @@ import math
 
 from .scenario import Application, Scenario
 
-__all__ = ["ARRIVE_TOLERANCE", "CATCH_SLACK", "DELIVER_TOLERANCE", "NEAR_STATION", "SAMPLE_PERIOD", "EnergyTruth", "GroundTruth"]
+__all__ = [
+    "ARRIVE_TOLERANCE",
+    "CATCH_SLACK",
+    "DELIVER_TOLERANCE",
+    "NEAR_STATION",
+    "SAMPLE_PERIOD",
+    "EnergyTruth",
+    "GroundTruth",
+]
 
 #: m beyond the capture distance a true catch may lie: the hunter judges on its AMCL pose (the
 #: thesis's 0.30 m) against the prey's last broadcast (2 Hz at 0.2 m/s: 0.1 m old at most), and the

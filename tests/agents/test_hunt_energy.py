@@ -1,8 +1,9 @@
 """Hunt and Prey with energy stations (thesis 4.2.1, "An Advanced Hunt and Prey Scenario").
 
-Without a network: the prey's recharge decision (:func:`recharge_mode`), its way to a station
-(:func:`nearest_station`, :func:`steer`), the hunters' choice of station to wait at
-(:func:`watch_station`, :func:`watch_point`), argument errors, and the verdict's energy note on
+Without a network: the prey's recharge decision (:func:`recharge_mode`, and its step on fakes),
+its way to a station (:func:`nearest_station`, :func:`steer`), the hunters' choice of station to
+wait at (:func:`watch_station`, :func:`watch_point`, and the hunter's step: ambush out of sight,
+chase in sight), argument errors, the scenario entry, and the verdict's energy note on
 fakes. With real processes: ``rsal run deploy/scenarios/hunt_prey.yaml --app energy`` on a free
 loopback port at the simulator's speed-up; the runner's ground truth (the simulator's true poses
 and the prey's ``power:0``, driven by the simulator's battery model) confirms the catch, says
@@ -12,6 +13,7 @@ or ran flat before. Every wait has a deadline.
 
 from __future__ import annotations
 
+import asyncio
 import math
 import re
 from types import SimpleNamespace
@@ -22,14 +24,16 @@ from agents.dispatch import Charger
 from agents.scenario import load_scenario
 from agents.scenarios.hunt import EnergyEscapeAgent, FollowAgent
 from agents.scenarios.hunt.energy import nearest_station, recharge_mode, steer, watch_point, watch_station
-from agents.services import Outcome
+from agents.services import Message, Outcome, SendPosition
 from agents.verdict import NEAR_STATION, GroundTruth
+from rsal.clock import Clock, set_clock
 from rsal.data import Position
 from rsal.interfaces.power import PowerData
 from tests.conftest import ROOT, SPEEDUP, free_port, rsal_cmd, wait_until
 
 SCENARIO = ROOT / "deploy" / "scenarios" / "hunt_prey.yaml"
 WEST, EAST = Charger("west", -8.8, 1.0, 0.0), Charger("east", 8.8, -1.0, math.pi)
+STATIONS = [{"name": "west", "pose": [-8.8, 1.0, 0]}, {"name": "east", "pose": [8.8, -1.0, 180]}]
 
 
 # ---------------------------------------------------------------------------- the prey's decision
@@ -96,6 +100,100 @@ def test_hunter_waits_in_front_of_the_station_facing_it():
     assert (p.x, p.y) == pytest.approx((-7.3, 1.0)) and abs(abs(p.yaw) - math.pi) < 1e-9
 
 
+class _FakeClock(Clock):
+    def __init__(self):
+        self.t = 100.0
+
+    def now(self) -> float:
+        return self.t
+
+
+def _position(c, robot, x, y, i=0):
+    return Message("send_position", "prey0", f"p{i}", c.t, SendPosition(robot, x, y, 0.0))
+
+
+def test_hunter_out_of_sight_waits_at_the_station_nearest_the_last_sighting_then_chases():
+    c = _FakeClock()
+    old = set_clock(c)
+    try:
+        h = FollowAgent("hunter1", robot="r1", prey="r0", sight=5.0, stations=STATIONS, replan_interval=0.5)
+        h.pioneer = SimpleNamespace(position=Position(0.0, 0.0, 0.0))  # the nav robot, as far as step needs
+        h._next_report = math.inf
+        goals: list[Position] = []
+
+        def start_goal(goal, report=True):
+            goals.append(goal)
+            h.goal_state = "driving"
+
+        h.start_goal = start_goal
+        # seen 4 m east: chase it
+        h._on_position(_position(c, "r0", 4.0, -1.0))
+        asyncio.run(h.step())
+        assert (goals[-1].x, goals[-1].y) == pytest.approx((4.0, -1.0), abs=0.05) and h.watching is None
+        assert h.seen["r0"] == (4.0, -1.0)
+        # it gets away east, out of sight: wait in front of the east station (nearest the sighting)
+        c.t += 1.0
+        h._on_position(_position(c, "r0", 7.0, -4.0, 1))
+        h.tracks = type(h.tracks)()  # no track to extrapolate from (the ambush uses the sighting)
+        asyncio.run(h.step())
+        assert h.watching.name == "east" and (goals[-1].x, goals[-1].y) == pytest.approx((7.3, -1.0))
+        n = len(goals)
+        c.t += 1.0
+        asyncio.run(h.step())  # on the way: no new goal
+        h.goal_state = "done"
+        c.t += 1.0
+        asyncio.run(h.step())  # there: waits, no new goal
+        assert len(goals) == n and "waiting for r0 at station east" in h.status()
+        # refused on the way (e.g. blocked): tried again after replan_interval
+        h.goal_state = "unreachable"
+        c.t += 1.0
+        asyncio.run(h.step())
+        assert len(goals) == n + 1 and (goals[-1].x, goals[-1].y) == pytest.approx((7.3, -1.0))
+        # it comes into sight at the station: chase again
+        h.pioneer = SimpleNamespace(position=Position(7.3, -1.0, 0.0))
+        c.t += 1.0
+        h._on_position(_position(c, "r0", 8.5, -2.0, 2))
+        asyncio.run(h.step())
+        assert h.watching is None and (goals[-1].x, goals[-1].y) == pytest.approx((8.5, -2.0), abs=0.3)
+    finally:
+        set_clock(old)
+
+
+def test_prey_goes_to_charge_below_threshold_and_flees_again_at_target():
+    c = _FakeClock()
+    old = set_clock(c)
+    try:
+        p = EnergyEscapeAgent("prey0", robot="r0", stations=STATIONS, threshold=0.5, target=0.9, speed=0.2)
+        commands: list[tuple[float, float]] = []
+        wallfollow: list[bool] = []
+        robot = SimpleNamespace(
+            position=Position(-6.8, 1.0, math.pi),
+            set_command=lambda v, w: commands.append((v, w)),
+            set_wallfollow=lambda on, side=None: wallfollow.append(on),
+        )
+        p.pioneer = robot
+        p._next_report = math.inf
+        p.power = SimpleNamespace(latest=object(), fraction=0.6, charging=False)
+        asyncio.run(p.step())
+        assert p.mode == "flee" and commands == []  # enough charge: wall-following untouched
+        p.power.fraction = 0.45
+        asyncio.run(p.step())
+        assert p.mode == "seek" and p.station.name == "west"
+        assert commands[-1][0] == pytest.approx(0.2) and commands[-1][1] == pytest.approx(0.0, abs=1e-9)
+        p.power.charging = True  # docked
+        asyncio.run(p.step())
+        assert p.mode == "charge" and commands[-1] == (0.0, 0.0) and p.charges == 1
+        p.power.fraction = 0.91
+        asyncio.run(p.step())
+        assert p.mode == "flee" and wallfollow == [True] and p.station is None
+        # caught: it leaves the robot to the spinning
+        p.caught_by, p.power.fraction, n = "hunter1", 0.1, len(commands)
+        asyncio.run(p.step())
+        assert p.mode == "flee" and len(commands) == n
+    finally:
+        set_clock(old)
+
+
 def test_bad_arguments_are_clear_errors():
     with pytest.raises(ValueError, match=r"agent p: target 0.4 must be above threshold 0.5"):
         EnergyEscapeAgent("p", robot="r0", threshold=0.5, target=0.4, simulation=True)
@@ -111,6 +209,21 @@ def test_bad_arguments_are_clear_errors():
     assert p.stations == [Charger("w", -8.8, 1.0, 0.0)] and p.mode == "flee"
     h = FollowAgent("h", robot="r1", prey="r0")
     assert h.sight == math.inf  # the old hunt: always in sight, no ambush
+
+
+def test_energy_app_parses_and_matches_the_classes():
+    from agents.scenario import check_classes
+
+    sc = load_scenario(SCENARIO)
+    app = sc.applications["energy"]
+    check_classes(sc, app)
+    assert (app.end.event, app.end.count) == ("caught", 1)
+    prey = [a for a in app.agents if a.cls == "EnergyEscapeAgent"]
+    hunters = [a for a in app.agents if a.cls == "FollowAgent"]
+    assert [a.robot for a in prey] == ["r0"] and prey[0].args["threshold"] < prey[0].args["target"]
+    assert sorted(a.robot for a in hunters) == list(app.simulator.nav_robots) == ["r1", "r2"]
+    assert all(math.isfinite(a.args["sight"]) and a.args["simulation"] for a in hunters)
+    assert app.simulator.world.name == "hunt_energy.world"
 
 
 # ---------------------------------------------------------------------------- the verdict, on fakes
@@ -182,7 +295,7 @@ def test_energy_hunt_runs_and_ground_truth_confirms_catch_and_charge(procs):
     )
     assert m, out[-3000:]
     d, at, to_station, station, percent, _, charged, flat, lowest = m.groups()
-    print(f"catch: {d} m; prey {at} a station ({to_station} m from {station}), {percent} %, charged {charged}, flat {flat}")
+    print(f"catch {d} m; prey {at} a station ({to_station} m, {station}), {percent} %, charged {charged}, flat {flat}")
     assert float(d) <= 1.0 + 0.5
     assert charged == "yes" or flat == "yes"  # the energy was real: it truly charged or truly ran flat
     assert (at == "at") == (float(to_station) <= NEAR_STATION)

@@ -192,7 +192,9 @@ class EnergyEscapeAgent(EscapeAgent):
             log.info("%s: battery at %.0f %%; heading for station %s", self.id, 100 * fraction, self.station.name)
         elif mode == "charge":
             self.charges += 1
-            log.info("%s: charging at %s from %.0f %%", self.id, self.station.name if self.station else "?", 100 * fraction)
+            log.info(
+                "%s: charging at %s from %.0f %%", self.id, self.station.name if self.station else "?", 100 * fraction
+            )
         else:
             log.info("%s: charged to %.0f %%; fleeing again", self.id, 100 * fraction)
             self.station = None
