@@ -23,7 +23,8 @@ import pytest
 from agents.dispatch import Charger
 from agents.scenario import load_scenario
 from agents.scenarios.hunt import EnergyEscapeAgent, FollowAgent
-from agents.scenarios.hunt.energy import nearest_station, recharge_mode, steer, watch_point, watch_station
+from agents.scenarios.hunt.energy import recharge_mode, steer
+from agents.scenarios.hunt.stations import nearest_station, watch_point, watch_station
 from agents.services import Message, Outcome, SendPosition
 from agents.verdict import NEAR_STATION, GroundTruth
 from rsal.clock import Clock, set_clock

@@ -21,12 +21,13 @@ bids its straight-line distance to the prey, a busy one refuses, so the nearest 
 (it could not bid before it is localized), or after ``ALLOCATION_GRACE`` seconds. The winner chases
 until the prey is caught, by anyone, and then answers ``inform-done``; nobody chases a caught prey.
 
-With energy stations (thesis 4.2.1: the prey must regain battery life there; :mod:`.energy`) a
+With energy stations (thesis 4.2.1: the prey must regain battery life there; :mod:`.energy`,
+:mod:`.stations`) a
 hunter may be given a finite ``sight``: it sees its prey only while the prey's broadcast position
 is within ``sight`` metres of its own (the broadcast stands in for the camera the thesis suggests).
 While the prey is out of sight the hunter waits in ambush at a station -- the stations ordered by
 distance to where it last saw the prey, hunter *k* by id watching the *k*-th
-(:func:`.energy.watch_station`), ``watch_distance`` in front of it -- and chases again as soon as
+(:func:`.stations.watch_station`), ``watch_distance`` in front of it -- and chases again as soon as
 the prey comes into sight. The stations come from ``stations`` or, with ``simulation: true``, from
 the simulation's ``describe``. With the default infinite ``sight`` nothing changes.
 A hunter answers only the auctioneer's calls and bids only for prey it knows (offered ``prey`` on
@@ -54,6 +55,7 @@ from rsal.robot import Pioneer
 from rsal.tracking import Tracks
 
 from .messages import HUNT_SERVICE
+from .stations import station_arg, stations_from_simulation, watch_point, watch_station
 
 __all__ = ["EscapeAgent", "FollowAgent"]
 
@@ -87,8 +89,6 @@ class FollowAgent(NavAgent):
         **kw,
     ):
         super().__init__(agent_id, **kw)
-        from .energy import station_arg
-
         self.sight = _number(agent_id, "sight", sight, 0.0)
         self.watch_distance = _number(agent_id, "watch_distance", watch_distance, 0.0, 20.0)
         self.stations = station_arg(agent_id, stations) if stations is not None else []
@@ -144,8 +144,6 @@ class FollowAgent(NavAgent):
         if self.allocation == "contract_net" or math.isfinite(self.sight):  # who hunts: allocation, ambush
             self._allocation_task = self.host.spawn(self._allocation_loop(), f"{self.id}: allocation")
         if math.isfinite(self.sight) and not self.stations:
-            from .energy import stations_from_simulation
-
             self.stations = await asyncio.to_thread(stations_from_simulation, self.fabric, self.startup_timeout)
             if not self.stations:
                 log.warning("%s: the world has no energy stations; waiting where the prey was last seen", self.id)
@@ -322,8 +320,6 @@ class FollowAgent(NavAgent):
 
     def _ambush(self, prey: str, me: Position, now: float) -> None:
         """The prey is out of sight: go and wait in front of the station it is likeliest to visit."""
-        from .energy import watch_point, watch_station
-
         station = watch_station(self.stations, self.seen.get(prey), self.hunters, self.id)
         if station is None:
             return

@@ -2,24 +2,18 @@
 
 The thesis proposes the extension in one sentence: the prey's "main goal would be exploration; a
 second goal might be gathering beneficial objects such as energy stations to regain battery life".
-This module holds that prey and the pieces the hunters' ambush shares with it:
+This module holds that prey:
 
 * :func:`recharge_mode` -- the prey's recharge decision, a pure function of its mode and its battery
   (``power:0``): ``flee`` (wall-following) until the charge falls below ``threshold``, then ``seek``
   (drive to the nearest station), ``charge`` once the station charges it, and ``flee`` again at
   ``target``. Pushed off a station before ``target`` it seeks again.
-* :func:`nearest_station`, :func:`steer` -- where the prey goes and how: straight for the station on
-  its odometry (anchored in the map frame, as the thesis's EscapeAgent, without planner or
-  localization), with the Pioneer's obstacle avoidance still acting on the command.
-* :func:`watch_station`, :func:`watch_point` -- the hunters' ambush (used by
-  :class:`~agents.scenarios.hunt.agents.FollowAgent` with a finite ``sight``): the stations ordered
-  by their distance to where the prey was last seen, hunter *k* (by id) watches the *k*-th, from
-  ``watch_distance`` in front of it (a charger's yaw points away from its wall, into the room).
-* :func:`stations_from_simulation` -- the stations as the simulation's ``describe`` gives them
-  (``chargers``), for agents "aware of a simulation environment" (thesis 3.6.2.2).
+* :func:`steer` -- how the prey gets to the nearest station (:func:`.stations.nearest_station`):
+  straight for it on its odometry (anchored in the map frame, as the thesis's EscapeAgent, without
+  planner or localization), with the Pioneer's obstacle avoidance still acting on the command.
 
-Stations are :class:`agents.dispatch.Charger` records, given as ``[{name, pose: [x, y, degrees]}]``
-(:func:`agents.dispatch.parse_chargers`) like the dispatcher's. Notes:
+The hunters' side -- waiting at the stations while the prey is out of sight -- is
+:class:`~agents.scenarios.hunt.agents.FollowAgent`'s ``sight`` with :mod:`.stations`. Notes:
 ``docs/scenarios/hunt_prey.md``, "With energy stations".
 """
 
@@ -31,22 +25,14 @@ import math
 from collections.abc import Sequence
 
 from agents.dispatch import Charger
-from agents.dispatch.agent import parse_chargers
 from agents.navigation import number_arg as _number
 from agents.registry import agent_class
 from rsal.data import Position
 
 from .agents import EscapeAgent
+from .stations import nearest_station, station_arg, stations_from_simulation
 
-__all__ = [
-    "EnergyEscapeAgent",
-    "nearest_station",
-    "recharge_mode",
-    "stations_from_simulation",
-    "steer",
-    "watch_point",
-    "watch_station",
-]
+__all__ = ["EnergyEscapeAgent", "recharge_mode", "steer"]
 
 log = logging.getLogger(__name__)
 
@@ -65,11 +51,6 @@ def recharge_mode(mode: str, fraction: float, charging: bool, threshold: float, 
     return "charge" if charging else "seek"
 
 
-def nearest_station(stations: Sequence[Charger], x: float, y: float) -> Charger | None:
-    """The station nearest (straight line) to ``(x, y)``; ties: the smaller name."""
-    return min(stations, key=lambda s: (math.hypot(s.x - x, s.y - y), s.name), default=None)
-
-
 def steer(pose: Position, x: float, y: float, speed: float, *, turn: float = 0.8) -> tuple[float, float]:
     """A (v m/s, w rad/s) command that drives from ``pose`` onto ``(x, y)``: turn towards it at up to
     ``turn`` rad/s, go forward only while roughly facing it, slowing down over the last metre."""
@@ -78,47 +59,6 @@ def steer(pose: Position, x: float, y: float, speed: float, *, turn: float = 0.8
     w = max(-turn, min(turn, 2.0 * err))
     v = speed * max(0.0, math.cos(err)) ** 2 * min(1.0, dist)
     return v, w
-
-
-def watch_station(
-    stations: Sequence[Charger], last_seen: tuple[float, float] | None, hunters: Sequence[str], me: str
-) -> Charger | None:
-    """The station hunter ``me`` watches: the stations ordered by distance to where the prey was
-    ``last_seen`` (by name while it was never seen), the hunters by id; the *k*-th hunter takes
-    the *k*-th station (round robin when there are more hunters than stations). A hunter that is
-    not in ``hunters`` counts as the first."""
-    if not stations:
-        return None
-    if last_seen is None:
-        order = sorted(stations, key=lambda s: s.name)
-    else:
-        order = sorted(stations, key=lambda s: (math.hypot(s.x - last_seen[0], s.y - last_seen[1]), s.name))
-    ids = sorted(set(hunters) | {me})
-    return order[ids.index(me) % len(order)]
-
-
-def watch_point(station: Charger, distance: float) -> Position:
-    """Where a hunter waits for the prey at ``station``: ``distance`` m in front of it (along its
-    yaw, away from the wall), facing the station."""
-    x = station.x + distance * math.cos(station.yaw)
-    y = station.y + distance * math.sin(station.yaw)
-    return Position(x, y, math.remainder(station.yaw + math.pi, math.tau))
-
-
-def stations_from_simulation(fabric, timeout: float = 10.0) -> list[Charger]:
-    """The world's charging stations from the simulation's ``describe`` (``chargers``; a worker
-    thread). Raises TimeoutError when no simulation device appears within ``timeout``."""
-    node = fabric.node("*:simulation:0")
-    found = node.wait_for("*:simulation:0", 1, timeout)
-    geo = node.device(found[0]).describe(timeout=timeout).geometry
-    return [Charger(str(c["name"]), *(float(v) for v in c["pose"][:3])) for c in geo.get("chargers", [])]
-
-
-def station_arg(agent_id: str, stations) -> list[Charger]:
-    """The ``stations`` argument: ``[{name, pose: [x, y, degrees]}]``; ValueError in one line."""
-    if not isinstance(stations, list | tuple):
-        raise ValueError(f"agent {agent_id}: stations {stations!r} must be a list of {{name, pose: [x, y, degrees]}}")
-    return parse_chargers(stations, f"agent {agent_id}")
 
 
 @agent_class("EnergyEscapeAgent")
