@@ -127,7 +127,16 @@ def test_hunter_out_of_sight_waits_at_the_station_nearest_the_last_sighting_then
             h.goal_state = "driving"
 
         h.start_goal = start_goal
+        # never seen (9.5 m away): no station before the first hello round says who else hunts ...
+        h._on_position(_position(c, "r0", -8.0, 3.0))
+        asyncio.run(h.step())
+        assert goals == [] and h.watching is None
+        h.hunters, h._looked = ["hunter1", "hunter2"], True  # ... then the first of two by id takes
+        asyncio.run(h.step())  # the first station by name (never seen): east
+        assert h.watching.name == "east" and (goals[-1].x, goals[-1].y) == pytest.approx((7.3, -1.0))
+        h.hunters = ["hunter1"]  # hunting alone from here on
         # seen 4 m east: chase it
+        c.t += 1.0
         h._on_position(_position(c, "r0", 4.0, -1.0))
         asyncio.run(h.step())
         assert (goals[-1].x, goals[-1].y) == pytest.approx((4.0, -1.0), abs=0.05) and h.watching is None

@@ -100,6 +100,7 @@ class FollowAgent(NavAgent):
         self.seen: dict[str, tuple[float, float]] = {}  # prey robot -> where this hunter last saw it
         self.watching = None  # the station (agents.dispatch.Charger) waited at while the prey is unseen
         self._watch_sent = False  # the goal to the watching station's watch point was sent
+        self._looked = False  # the first hello round is done (the ambush splits the stations by it)
         if allocation not in ("fixed", "contract_net"):
             raise ValueError(f"agent {agent_id}: allocation {allocation!r} must be 'fixed' or 'contract_net'")
         if not isinstance(prey, str):
@@ -210,6 +211,7 @@ class FollowAgent(NavAgent):
         """Who hunts and what is prey (hello), for the allocation."""
         hellos: list[Hello] = await self.host.who_is_there(timeout=0.5)
         self.hunters = sorted(h.id for h in hellos if "hunter" in h.capabilities)
+        self._looked = True
         self.hunter_robots = {h.id: h.robot for h in hellos if "hunter" in h.capabilities}
         self.prey_robots |= {h.robot for h in hellos if "prey" in h.capabilities and h.robot}
 
@@ -320,6 +322,8 @@ class FollowAgent(NavAgent):
 
     def _ambush(self, prey: str, me: Position, now: float) -> None:
         """The prey is out of sight: go and wait in front of the station it is likeliest to visit."""
+        if not self._looked:
+            return  # who else hunts decides which station is this hunter's: wait for the first hello round
         station = watch_station(self.stations, self.seen.get(prey), self.hunters, self.id)
         if station is None:
             return
