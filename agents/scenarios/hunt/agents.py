@@ -21,18 +21,18 @@ bids its straight-line distance to the prey, a busy one refuses, so the nearest 
 (it could not bid before it is localized), or after ``ALLOCATION_GRACE`` seconds. The winner chases
 until the prey is caught, by anyone, and then answers ``inform-done``; nobody chases a caught prey.
 
-With energy stations (thesis 4.2.1: the prey must regain battery life there; :mod:`.energy`,
-:mod:`.stations`) a
-hunter may be given a finite ``sight``: it sees its prey only while the prey's broadcast position
-is within ``sight`` metres of its own (the broadcast stands in for the camera the thesis suggests).
-While the prey is out of sight the hunter waits in ambush at a station -- the stations ordered by
-distance to where it last saw the prey, hunter *k* by id watching the *k*-th
-(:func:`.stations.watch_station`), ``watch_distance`` in front of it -- and chases again as soon as
-the prey comes into sight. The stations come from ``stations`` or, with ``simulation: true``, from
-the simulation's ``describe``. With the default infinite ``sight`` nothing changes.
 A hunter answers only the auctioneer's calls and bids only for prey it knows (offered ``prey`` on
 ``hello`` and broadcast a position), so a forged call for an unknown prey (a "ghost") commits nobody
 (``docs/security.md``, "Open fabric").
+
+With energy stations (thesis 4.2.1: the prey must regain battery life there; :mod:`.energy`,
+:mod:`.stations`) a hunter may be given a finite ``sight``: it sees its prey only while the prey's
+broadcast position is within ``sight`` metres of its own (the broadcast stands in for the camera
+the thesis suggests). While the prey is out of sight the hunter waits in ambush at a station -- the
+stations ordered by distance to where it last saw the prey, hunter *k* by id watching the *k*-th
+(:func:`.stations.watch_station`), ``watch_distance`` in front of it -- and chases again as soon as
+the prey comes into sight. The stations come from ``stations`` or, with ``simulation: true``, from
+the simulation's ``describe``. With the default infinite ``sight`` nothing changes.
 """
 
 from __future__ import annotations
