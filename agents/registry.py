@@ -36,6 +36,7 @@ CLASS_MODULES: dict[str, str] = {
     "NavAgent": "agents.navigation",
     "EscapeAgent": "agents.scenarios.hunt.agents",
     "FollowAgent": "agents.scenarios.hunt.agents",
+    "EnergyEscapeAgent": "agents.scenarios.hunt.energy",
     "ExploreAgent": "agents.scenarios.collect.explorer",
     "CollectAgent": "agents.scenarios.collect.collector",
     "MasterAgent": "agents.scenarios.collect.master",

@@ -9,7 +9,11 @@ agrees:
 
 - ``caught`` (subject: the prey's robot; sender: a hunter agent with a robot): the hunter's robot
   truly within its ``capture_distance`` (the agent's argument, else its class's default) plus
-  :data:`CATCH_SLACK` of the prey;
+  :data:`CATCH_SLACK` of the prey; for a prey that recharges (its class offers ``recharge``: Hunt and
+  Prey with energy stations) the note adds its true distance to the nearest station (the
+  simulation's ``describe`` ``chargers``; "at a station" within :data:`NEAR_STATION`), its true
+  charge at the catch and whether it truly charged or ran flat before -- from its robot's
+  ``power:0``, which the simulator's battery model drives (:class:`EnergyTruth`, every sample);
 - ``arrived`` with a place (``Outcome.at``, the goal): the subject robot truly within
   :data:`ARRIVE_TOLERANCE` of it;
 - an ok final ``verdict`` after ``assigned`` outcomes with places (Distribution, thesis 4.2.4):
@@ -39,7 +43,15 @@ import math
 
 from .scenario import Application, Scenario
 
-__all__ = ["ARRIVE_TOLERANCE", "CATCH_SLACK", "DELIVER_TOLERANCE", "SAMPLE_PERIOD", "GroundTruth"]
+__all__ = [
+    "ARRIVE_TOLERANCE",
+    "CATCH_SLACK",
+    "DELIVER_TOLERANCE",
+    "NEAR_STATION",
+    "SAMPLE_PERIOD",
+    "EnergyTruth",
+    "GroundTruth",
+]
 
 #: m beyond the capture distance a true catch may lie: the hunter judges on its AMCL pose (the
 #: thesis's 0.30 m) against the prey's last broadcast (2 Hz at 0.2 m/s: 0.1 m old at most), and the
@@ -51,6 +63,9 @@ ARRIVE_TOLERANCE = 0.7
 #: m between a delivered bin and its collector's home (the thesis's Find and Collect brings the
 #: blob "home"; the collector stops within Wavefront's 0.4 m of it and puts the bin down in front)
 DELIVER_TOLERANCE = 1.0
+#: m between a caught prey and a station for the catch to count as "at a station": a hunter waiting
+#: in ambush stands ``watch_distance`` (1.5 m) in front of it and catches within 1 m
+NEAR_STATION = 2.5
 #: seconds between true-pose samples of a duration run
 SAMPLE_PERIOD = 0.5
 SIM_DEVICE = "sim:simulation:0"
@@ -68,15 +83,56 @@ def _default(cls_name: str, arg: str) -> float | None:
     return None if p is None or p.default is inspect.Parameter.empty else p.default
 
 
+class EnergyTruth:
+    """The true battery record of one robot: every ``power:0`` sample the simulator publishes for it
+    (the simulator's battery model, not the agent's belief) through ``device`` (a
+    :class:`rsal.interfaces.power.Power`-like proxy: ``add_listener``, ``latest``)."""
+
+    def __init__(self, device):
+        self.device = device
+        self.charged = False  # a sample said charging
+        self.flat = False  # a sample said 0 %
+        self.lowest = math.inf  # lowest percent seen
+        device.add_listener(self._on_data)
+
+    def _on_data(self, m) -> None:
+        self.charged |= bool(m.charging)
+        self.flat |= m.percent <= 0.0
+        self.lowest = min(self.lowest, float(m.percent))
+
+    def describe(self) -> str:
+        m = self.device.latest
+        if m is None:
+            return "true battery unknown (no power:0 data)"
+        seen = f"charged before: {'yes' if self.charged else 'no'}, ran flat: {'yes' if self.flat else 'no'}"
+        return f"true battery {m.percent:.0f} %{' charging' if m.charging else ''} ({seen}, lowest {self.lowest:.0f} %)"
+
+
+def _capabilities(cls_name: str) -> tuple:
+    from .registry import resolve
+
+    try:
+        return tuple(getattr(resolve(cls_name), "capabilities", ()))
+    except Exception:
+        return ()
+
+
 class GroundTruth:
     """Checks ``app``'s outcomes against the simulator on the runner's ``session``."""
 
-    def __init__(self, session, sc: Scenario, app: Application, *, sim=None, get_map=None, real=None):
-        """``sim`` (a :class:`rsal.interfaces.simulation.Simulation`-like ``get_pose`` and ``models``),
-        ``real`` (the same for a rehearsal's world) and ``get_map`` (returns a
-        :class:`rsal.interfaces.map.MapData`) replace the devices on ``session`` (tests)."""
+    def __init__(self, session, sc: Scenario, app: Application, *, sim=None, get_map=None, real=None, power=None):
+        """``sim`` (a :class:`rsal.interfaces.simulation.Simulation`-like ``get_pose``, ``models`` and
+        ``describe``), ``real`` (the same for a rehearsal's world), ``get_map`` (returns a
+        :class:`rsal.interfaces.map.MapData`) and ``power`` (robot -> a ``power:0``-like proxy)
+        replace the devices on ``session`` (tests)."""
         self.fabric = None
-        if sim is None or get_map is None or (app.rehearse is not None and real is None):
+        recharging = [a.robot for a in app.agents if a.robot and "recharge" in _capabilities(a.cls)]
+        if (
+            sim is None
+            or get_map is None
+            or (app.rehearse is not None and real is None)
+            or (recharging and power is None)
+        ):
             from rsal.client import Fabric
 
             self.fabric = Fabric(session, own_session=False)
@@ -98,6 +154,10 @@ class GroundTruth:
         self._clear: tuple | None = None  # (distance grid m, origin, resolution)
         self.homes: dict[str, tuple[float, float]] = {}  # collector robot -> its home
         self.delivered = 0  # deliveries the truth confirmed
+        get_power = power or (lambda robot: self.fabric.device(f"{robot}:power:0"))
+        #: robot -> its true battery record, for the prey that recharge (subscribed from the start)
+        self.energy: dict[str, EnergyTruth] = {r: EnergyTruth(get_power(r)) for r in recharging}
+        self._stations: list[tuple[str, float, float]] | None = None
 
     @property
     def samples(self) -> bool:
@@ -182,7 +242,23 @@ class GroundTruth:
                 f"(capture distance {cap:g} m + {CATCH_SLACK:g} m)"
             )
         self.note = f"ground truth: {hunter.robot} {d:.2f} m from {o.subject} at the catch"
+        if o.subject in self.energy:
+            self.note += f"; {self._energy_note(o.subject)}"
         return None
+
+    def _energy_note(self, prey: str) -> str:
+        """Where the caught ``prey`` truly is against the stations, and its true battery."""
+        if self._stations is None:
+            geo = self.sim.describe(timeout=5.0).geometry
+            self._stations = [(c["name"], float(c["pose"][0]), float(c["pose"][1])) for c in geo.get("chargers", [])]
+        x, y = self._where(prey)
+        near = min(((math.dist((x, y), (sx, sy)), n) for n, sx, sy in self._stations), default=None)
+        if near is None:
+            where = "no station in the world"
+        else:
+            at = "at" if near[0] <= NEAR_STATION else "away from"
+            where = f"{at} a station ({near[0]:.1f} m from {near[1]})"
+        return f"{prey} {where}, {self.energy[prey].describe()}"
 
     def _delivered(self, o) -> str | None:
         """One more bin than confirmed before must truly lie within DELIVER_TOLERANCE of a home."""

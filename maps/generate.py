@@ -236,7 +236,31 @@ HALL = dict(
     + [(s * _HALL - _T, _DOOR, s * _HALL + _T, _HALL) for s in (-1, 1)],
 )
 
-MAPS = {"floor": FLOOR, "arena": ARENA, "hall": HALL, "testroom": TESTROOM}
+# =====================================================================================================
+# hunt_energy.png -- Hunt and Prey with energy stations (thesis 4.2.1, "An Advanced Hunt and Prey"):
+# a 20 m x 12 m hall, 0.05 m/px, origin (-10, -6): world extent [-10, 10] x [-6, 6], outer wall
+# 0.2 m (free interior x in [-9.8, 9.8], y in [-5.8, 5.8]). A long table west of the centre and two
+# pillars give AMCL something to hold on to and the prey's wall-following a detour; the energy
+# stations (``charger`` models of hunt_energy.world) stand 1 m off the middle of the west and east
+# walls, where nothing blocks the way to them.
+# =====================================================================================================
+HUNT_ENERGY = {
+    "file": "hunt_energy.png",
+    "resolution": 0.05,
+    "origin": (-10.0, -6.0),
+    "size_px": (400, 240),
+    "outer_wall": 0.2,
+    "walls": [],
+    "doors": [],
+    "blocks": [
+        (-4.0, -0.5, -1.0, 0.5),  # the long table
+        (3.0, 2.5, 3.8, 3.3),  # north-east pillar
+        (3.0, -3.3, 3.8, -2.5),  # south-east pillar
+    ],
+    "polygons": [],
+}
+
+MAPS = {"floor": FLOOR, "arena": ARENA, "hall": HALL, "testroom": TESTROOM, "hunt_energy": HUNT_ENERGY}
 
 
 # =====================================================================================================

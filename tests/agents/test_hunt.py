@@ -210,7 +210,7 @@ def test_scenario_file_parses_and_matches_the_classes():
     from agents.scenario import check_classes, load_scenario
 
     sc = load_scenario(ROOT / "deploy/scenarios/hunt_prey.yaml")
-    assert set(sc.applications) == {"virtual", "advanced", "fleet"}
+    assert set(sc.applications) == {"virtual", "advanced", "energy", "fleet"}
     for app in sc.applications.values():
         check_classes(sc, app)
     v, a = sc.applications["virtual"], sc.applications["advanced"]

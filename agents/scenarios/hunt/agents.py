@@ -20,9 +20,19 @@ bids its straight-line distance to the prey, a busy one refuses, so the nearest 
 ("nearest first"); the auctioneer allocates once every hunter it knows has broadcast a map position
 (it could not bid before it is localized), or after ``ALLOCATION_GRACE`` seconds. The winner chases
 until the prey is caught, by anyone, and then answers ``inform-done``; nobody chases a caught prey.
+
 A hunter answers only the auctioneer's calls and bids only for prey it knows (offered ``prey`` on
 ``hello`` and broadcast a position), so a forged call for an unknown prey (a "ghost") commits nobody
 (``docs/security.md``, "Open fabric").
+
+With energy stations (thesis 4.2.1: the prey must regain battery life there; :mod:`.energy`,
+:mod:`.stations`) a hunter may be given a finite ``sight``: it sees its prey only while the prey's
+broadcast position is within ``sight`` metres of its own (the broadcast stands in for the camera
+the thesis suggests). While the prey is out of sight the hunter waits in ambush at a station -- the
+stations ordered by distance to where it last saw the prey, hunter *k* by id watching the *k*-th
+(:func:`.stations.watch_station`), ``watch_distance`` in front of it -- and chases again as soon as
+the prey comes into sight. The stations come from ``stations`` or, with ``simulation: true``, from
+the simulation's ``describe``. With the default infinite ``sight`` nothing changes.
 """
 
 from __future__ import annotations
@@ -45,6 +55,7 @@ from rsal.robot import Pioneer
 from rsal.tracking import Tracks
 
 from .messages import HUNT_SERVICE
+from .stations import station_arg, stations_from_simulation, watch_point, watch_station
 
 __all__ = ["EscapeAgent", "FollowAgent"]
 
@@ -72,9 +83,24 @@ class FollowAgent(NavAgent):
         replan_distance: float = 0.75,
         replan_interval: float = 1.0,
         max_pose_sd: float = 0.3,
+        sight: float = math.inf,
+        stations: list | None = None,
+        watch_distance: float = 1.5,
         **kw,
     ):
         super().__init__(agent_id, **kw)
+        self.sight = _number(agent_id, "sight", sight, 0.0)
+        self.watch_distance = _number(agent_id, "watch_distance", watch_distance, 0.0, 20.0)
+        self.stations = station_arg(agent_id, stations) if stations is not None else []
+        if math.isfinite(self.sight) and stations is None and not self.simulation:
+            raise ValueError(
+                f"agent {agent_id}: a finite sight needs the energy stations to wait at: "
+                "stations: [{name, pose: [x, y, degrees]}] or simulation: true"
+            )
+        self.seen: dict[str, tuple[float, float]] = {}  # prey robot -> where this hunter last saw it
+        self.watching = None  # the station (agents.dispatch.Charger) waited at while the prey is unseen
+        self._watch_sent = False  # the goal to the watching station's watch point was sent
+        self._looked = False  # the first hello round is done (the ambush splits the stations by it)
         if allocation not in ("fixed", "contract_net"):
             raise ValueError(f"agent {agent_id}: allocation {allocation!r} must be 'fixed' or 'contract_net'")
         if not isinstance(prey, str):
@@ -116,7 +142,12 @@ class FollowAgent(NavAgent):
                 self, bid=self._bid, perform=self._perform, service=HUNT_SERVICE, initiators=self._is_auctioneer
             )
             self._initiator = Initiator(self, service=HUNT_SERVICE)
+        if self.allocation == "contract_net" or math.isfinite(self.sight):  # who hunts: allocation, ambush
             self._allocation_task = self.host.spawn(self._allocation_loop(), f"{self.id}: allocation")
+        if math.isfinite(self.sight) and not self.stations:
+            self.stations = await asyncio.to_thread(stations_from_simulation, self.fabric, self.startup_timeout)
+            if not self.stations:
+                log.warning("%s: the world has no energy stations; waiting where the prey was last seen", self.id)
 
     async def killed(self) -> None:
         if self._allocation_task is not None:
@@ -180,6 +211,7 @@ class FollowAgent(NavAgent):
         """Who hunts and what is prey (hello), for the allocation."""
         hellos: list[Hello] = await self.host.who_is_there(timeout=0.5)
         self.hunters = sorted(h.id for h in hellos if "hunter" in h.capabilities)
+        self._looked = True
         self.hunter_robots = {h.id: h.robot for h in hellos if "hunter" in h.capabilities}
         self.prey_robots |= {h.robot for h in hellos if "prey" in h.capabilities and h.robot}
 
@@ -187,7 +219,7 @@ class FollowAgent(NavAgent):
         """Look around every ``replan_interval`` (at least 1 s); the lowest-id hunter allocates."""
         while self.state == "running":
             await self._look_around()
-            if self.hunters and self.hunters[0] == self.id:
+            if self.allocation == "contract_net" and self.hunters and self.hunters[0] == self.id:
                 await self._allocate()
             await clock().asleep(max(1.0, self.replan_interval))
 
@@ -250,6 +282,16 @@ class FollowAgent(NavAgent):
         if target is None or me is None:
             return
         d = math.hypot(target.x - me.x, target.y - me.y)
+        if d > self.sight:  # out of sight: wait for it at a station
+            self._ambush(prey, me, now)
+            return
+        self.seen[prey] = (target.x, target.y)
+        if self.watching is not None:
+            log.info("%s: %s in sight (%.1f m); chasing", self.id, prey, d)
+            self.watching = None
+            self._watch_sent = False
+            self._chase_goal = None
+            self._last_plan = -math.inf
         if d <= self.capture_distance and self._sure_where(now):
             text = f"prey {prey} caught by {self.robot} after {now - self._hunt_start:.1f} s"
             log.info("%s: %s", self.id, text)
@@ -277,6 +319,27 @@ class FollowAgent(NavAgent):
             goal = Position(target.x - back * math.cos(heading), target.y - back * math.sin(heading), heading)
             self._chase_goal = Position(target.x, target.y, heading)
             self._goal_task = self.start_goal(goal, report=False)
+
+    def _ambush(self, prey: str, me: Position, now: float) -> None:
+        """The prey is out of sight: go and wait in front of the station it is likeliest to visit."""
+        if not self._looked:
+            return  # who else hunts decides which station is this hunter's: wait for the first hello round
+        station = watch_station(self.stations, self.seen.get(prey), self.hunters, self.id)
+        if station is None:
+            return
+        if station != self.watching:
+            log.info("%s: %s out of sight; waiting at station %s", self.id, prey, station.name)
+            self.watching = station
+            self._watch_sent = False
+            self._last_plan = -math.inf
+        if self._watch_sent and self.goal_state in ("driving", "done"):
+            return  # on the way, or there: wait
+        if now - self._last_plan < self.replan_interval:
+            return  # a refused or aborted watch goal is tried again once per interval
+        self._last_plan = now
+        self._chase_goal = None  # the goal is the watch point, not a prey position
+        self._watch_sent = True
+        self._goal_task = self.start_goal(watch_point(station, self.watch_distance), report=False)
 
     def pose_sd(self) -> float | None:
         """The localizer's position standard deviation (m): the square root of the larger eigenvalue
@@ -310,7 +373,9 @@ class FollowAgent(NavAgent):
 
     def status(self) -> str:
         line = super().status()
-        if self.prey:
+        if self.prey and self.watching is not None:
+            chase = f"waiting for {self.prey} at station {self.watching.name}"
+        elif self.prey:
             chase = f"chasing {self.prey}"
         elif self.allocation == "fixed":
             chase = f"hunt over ({self.caught.get(next(iter(self.prey_robots)), 'prey gone')})"
