@@ -25,8 +25,6 @@ from rsal.interfaces.ranger import RangerData
 from rsal.keys import parse_key
 from rsal.msgs import decode_map
 
-from . import types
-
 __all__ = ["convert", "register"]
 
 
@@ -43,6 +41,8 @@ def convert(paths: list[str], out: str | Path, *, frame_prefix: str = "{robot}/"
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     from rsal.record import Recording
+
+    from . import types  # here, not at the top: every rsal command registers rosbag2
 
     rec = Recording(*paths)
     out = Path(out)

@@ -23,10 +23,9 @@ from functools import cache
 from typing import Any
 
 import numpy as np
-from rosbags.typesys import Stores, get_typestore
 
 __all__ = [
-    "TYPESTORE",
+    "TYPESTORE",  # noqa: F822 - made on first use (module __getattr__)
     "HASH_NOT_SUPPORTED",
     "dds_name",
     "ros_name",
@@ -47,13 +46,29 @@ __all__ = [
     "sonar_range",
 ]
 
-#: the ROS 2 distribution whose message definitions (and so hashes) the bridge speaks
-TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
-
 #: what rmw_zenoh on Humble writes where later distributions write a RIHS01 hash
 HASH_NOT_SUPPORTED = "TypeHashNotSupported"
 
-_T = TYPESTORE.types
+
+@cache
+def _store() -> Any:
+    """The type store of the ROS 2 distribution whose message definitions (and so hashes) the bridge
+    speaks, made on first use: rosbags loads every distribution's definitions, a fifth of a second
+    that a device server without a ROS 2 driver (every ``rsal sim``) should not pay."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def _t(ros: str) -> Any:
+    """The message class of ``ros`` (``sensor_msgs/msg/LaserScan``)."""
+    return _store().types[ros]
+
+
+def __getattr__(name: str) -> Any:
+    if name == "TYPESTORE":  # the Jazzy type store (module attribute, made on first use)
+        return _store()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def dds_name(ros: str) -> str:
@@ -80,19 +95,19 @@ def _split(ros: str) -> tuple[str, str, str]:
 @cache
 def type_hash(ros: str) -> str:
     """REP-2016 hash ``RIHS01_<64 hex>`` of a message type, computed from its definition."""
-    if ros not in _T:
+    if ros not in _store().types:
         raise ValueError(f"unknown ROS 2 message type {ros!r} (the bridge knows the Jazzy standard messages)")
-    return TYPESTORE.hash_rihs01(ros)
+    return _store().hash_rihs01(ros)
 
 
 def encode(msg: Any, ros: str) -> bytes:
     """CDR little-endian with its 4-byte encapsulation header ``00 01 00 00``."""
-    return bytes(TYPESTORE.serialize_cdr(msg, ros))
+    return bytes(_store().serialize_cdr(msg, ros))
 
 
 def decode(data: bytes | bytearray | memoryview, ros: str) -> Any:
     """The message of a CDR payload (raises on malformed bytes)."""
-    return TYPESTORE.deserialize_cdr(bytes(data), ros)
+    return _store().deserialize_cdr(bytes(data), ros)
 
 
 # ---------------------------------------------------------------------------- builders
@@ -100,17 +115,17 @@ def stamp(t: float) -> Any:
     """``builtin_interfaces/msg/Time`` of ``t`` seconds (the RSAL clock: wall or simulation)."""
     sec = math.floor(t)
     nsec = min(int(round((t - sec) * 1e9)), 999_999_999)
-    return _T["builtin_interfaces/msg/Time"](sec=int(sec), nanosec=nsec)
+    return _t("builtin_interfaces/msg/Time")(sec=int(sec), nanosec=nsec)
 
 
 def _header(t: float, frame: str) -> Any:
-    return _T["std_msgs/msg/Header"](stamp=stamp(t), frame_id=frame)
+    return _t("std_msgs/msg/Header")(stamp=stamp(t), frame_id=frame)
 
 
 def yaw_quaternion(yaw: float) -> Any:
     """``geometry_msgs/msg/Quaternion`` of a rotation by ``yaw`` about z."""
     h = 0.5 * yaw
-    return _T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(h), w=math.cos(h))
+    return _t("geometry_msgs/msg/Quaternion")(x=0.0, y=0.0, z=math.sin(h), w=math.cos(h))
 
 
 _ZERO36 = np.zeros(36, dtype=np.float64)
@@ -120,7 +135,7 @@ def laser_scan(scan, frame: str, scan_time: float = 0.0) -> Any:
     """``sensor_msgs/msg/LaserScan`` from a RangerData (angles in the laser's frame, metres)."""
     r = np.asarray(scan.ranges, dtype=np.float32)
     n = int(r.shape[0])
-    return _T["sensor_msgs/msg/LaserScan"](
+    return _t("sensor_msgs/msg/LaserScan")(
         header=_header(scan.t, frame),
         angle_min=float(scan.angle_min),
         angle_max=float(scan.angle_min + (n - 1) * scan.angle_step) if n else float(scan.angle_min),
@@ -135,18 +150,18 @@ def laser_scan(scan, frame: str, scan_time: float = 0.0) -> Any:
 
 
 def _pose(x: float, y: float, yaw: float) -> Any:
-    return _T["geometry_msgs/msg/Pose"](
-        position=_T["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=0.0), orientation=yaw_quaternion(yaw)
+    return _t("geometry_msgs/msg/Pose")(
+        position=_t("geometry_msgs/msg/Point")(x=float(x), y=float(y), z=0.0), orientation=yaw_quaternion(yaw)
     )
 
 
 def _vec(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> Any:
-    return _T["geometry_msgs/msg/Vector3"](x=float(x), y=float(y), z=float(z))
+    return _t("geometry_msgs/msg/Vector3")(x=float(x), y=float(y), z=float(z))
 
 
 def twist(v: float, w: float, vy: float = 0.0) -> Any:
     """``geometry_msgs/msg/Twist``: forward ``v`` and sideways ``vy`` m/s, turn rate ``w`` rad/s."""
-    return _T["geometry_msgs/msg/Twist"](linear=_vec(v, vy), angular=_vec(0.0, 0.0, w))
+    return _t("geometry_msgs/msg/Twist")(linear=_vec(v, vy), angular=_vec(0.0, 0.0, w))
 
 
 def odometry(data, frame: str, child_frame: str) -> Any:
@@ -154,11 +169,11 @@ def odometry(data, frame: str, child_frame: str) -> Any:
     ``child_frame`` (base_link). Covariances are zero: the simulator and P2OS report none."""
     x, y, yaw = data.pose
     vx, vy, w = data.vel
-    return _T["nav_msgs/msg/Odometry"](
+    return _t("nav_msgs/msg/Odometry")(
         header=_header(data.t, frame),
         child_frame_id=child_frame,
-        pose=_T["geometry_msgs/msg/PoseWithCovariance"](pose=_pose(x, y, yaw), covariance=_ZERO36),
-        twist=_T["geometry_msgs/msg/TwistWithCovariance"](twist=twist(vx, w, vy), covariance=_ZERO36),
+        pose=_t("geometry_msgs/msg/PoseWithCovariance")(pose=_pose(x, y, yaw), covariance=_ZERO36),
+        twist=_t("geometry_msgs/msg/TwistWithCovariance")(twist=twist(vx, w, vy), covariance=_ZERO36),
     )
 
 
@@ -167,13 +182,13 @@ def tf_message(t: float, transforms: list[tuple[str, str, tuple[float, float, fl
     tfs = []
     for parent, child, (x, y, yaw) in transforms:
         tfs.append(
-            _T["geometry_msgs/msg/TransformStamped"](
+            _t("geometry_msgs/msg/TransformStamped")(
                 header=_header(t, parent),
                 child_frame_id=child,
-                transform=_T["geometry_msgs/msg/Transform"](translation=_vec(x, y), rotation=yaw_quaternion(yaw)),
+                transform=_t("geometry_msgs/msg/Transform")(translation=_vec(x, y), rotation=yaw_quaternion(yaw)),
             )
         )
-    return _T["tf2_msgs/msg/TFMessage"](transforms=tfs)
+    return _t("tf2_msgs/msg/TFMessage")(transforms=tfs)
 
 
 def twist_to_velocity(msg: Any) -> tuple[float, float, float]:
@@ -192,17 +207,17 @@ def _cov6(cov3) -> np.ndarray:
 
 def pose_with_covariance_stamped(data, frame: str) -> Any:
     """``geometry_msgs/msg/PoseWithCovarianceStamped`` from a LocalizeData (AMCL's ``amcl_pose``)."""
-    return _T["geometry_msgs/msg/PoseWithCovarianceStamped"](
+    return _t("geometry_msgs/msg/PoseWithCovarianceStamped")(
         header=_header(data.t, frame),
-        pose=_T["geometry_msgs/msg/PoseWithCovariance"](pose=_pose(*data.pose), covariance=_cov6(data.cov)),
+        pose=_t("geometry_msgs/msg/PoseWithCovariance")(pose=_pose(*data.pose), covariance=_cov6(data.cov)),
     )
 
 
 def path(t: float, frame: str, poses: list[tuple[float, float, float]]) -> Any:
     """``nav_msgs/msg/Path`` through planar ``poses`` (x, y, yaw) in ``frame``."""
-    return _T["nav_msgs/msg/Path"](
+    return _t("nav_msgs/msg/Path")(
         header=_header(t, frame),
-        poses=[_T["geometry_msgs/msg/PoseStamped"](header=_header(t, frame), pose=_pose(*p)) for p in poses],
+        poses=[_t("geometry_msgs/msg/PoseStamped")(header=_header(t, frame), pose=_pose(*p)) for p in poses],
     )
 
 
@@ -219,19 +234,19 @@ def occupancy_grid(m, t: float, frame: str) -> Any:
     the origin the bottom-left corner's world position."""
     cells = np.asarray(m.cells, dtype=np.int8).reshape(-1)
     data = np.where(cells > 0, 100, np.where(cells < 0, 0, -1)).astype(np.int8)
-    info = _T["nav_msgs/msg/MapMetaData"](
+    info = _t("nav_msgs/msg/MapMetaData")(
         map_load_time=stamp(t),
         resolution=float(m.resolution),
         width=int(m.width),
         height=int(m.height),
         origin=_pose(float(m.origin[0]), float(m.origin[1]), 0.0),
     )
-    return _T["nav_msgs/msg/OccupancyGrid"](header=_header(t, frame), info=info, data=data)
+    return _t("nav_msgs/msg/OccupancyGrid")(header=_header(t, frame), info=info, data=data)
 
 
 def sonar_range(scan, k: int, frame: str, fov: float) -> Any:
     """``sensor_msgs/msg/Range`` (ultrasound) of transducer ``k`` of a sonar ring's RangerData."""
-    R = _T["sensor_msgs/msg/Range"]
+    R = _t("sensor_msgs/msg/Range")
     return R(
         header=_header(scan.t, frame),
         radiation_type=R.ULTRASOUND,

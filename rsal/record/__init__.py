@@ -11,10 +11,37 @@ describes the commands and the file layout.
 
 from __future__ import annotations
 
+import importlib
+from typing import TYPE_CHECKING
+
 from .cli import register
 from .format import RecordingError
-from .player import Player, PlayOptions, Recording, Sample
-from .recorder import Recorder, RecordOptions, RecordStats
+
+if TYPE_CHECKING:
+    from .player import Player, PlayOptions, Recording, Sample
+    from .recorder import Recorder, RecordOptions, RecordStats
+
+# The player and the recorder are imported on first use (PEP 562): every ``rsal`` command registers
+# ``record`` and ``play``, and the player's ROS 2 types would cost each process start a fifth of a
+# second.
+_LAZY = {
+    "Player": ".player",
+    "PlayOptions": ".player",
+    "Recording": ".player",
+    "Sample": ".player",
+    "Recorder": ".recorder",
+    "RecordOptions": ".recorder",
+    "RecordStats": ".recorder",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "Player",

@@ -9,7 +9,8 @@ poses (``--truth``) at the moment a task is reported done:
    unknown kind), nothing else happens;
 2. task A is won by r0 (the nearer robot) and done with r0 truly at its goal; r0 is then below the
    20 % threshold and the dispatcher sends it to the charger: r0 truly docks and its battery rises
-   to the 90 % target before it is given work again;
+   to the charging target before it is given work again (50 % here, the policy's default is 90 %:
+   the same charge, in 18 simulated seconds instead of 42);
 3. task B, submitted while r0 charges, goes to r1; once B is active r1 breaks down (its base's
    emergency stop latched) and its agent is killed (SIGKILL): the dispatcher sees the liveliness
    token go, re-bids B
@@ -38,6 +39,8 @@ WORLD = str(MAPS / "dispatch.world")
 A = (3.5, -2.5)
 B = (3.5, 2.5)
 DOCK = (-4.0, 0.0)
+#: the charging policy's target for the dispatcher and the FleetAgents (default 0.9)
+TARGET = 0.5
 
 
 class Watcher(Agent):
@@ -84,7 +87,7 @@ def test_dispatch_bids_charging_and_rebid_after_a_killed_robot(procs, port, fabr
     truth = Truth(fab.session, ["r0", "r1"])
     wait_until(truth.ready, 60, "true poses from rsal sim --truth")
     power0 = fab.device("r0:power:0")
-    common = ["--connect", ep, "--startup-timeout", "60"]
+    common = ["--connect", ep, "--startup-timeout", "60", "--arg", f"target={TARGET}"]
     procs(
         rsal_cmd(
             "agent", "DispatcherAgent", "--id", "dispatcher", "--arg", "map=sim:map:0", "--arg", "simulation=sim",
@@ -129,7 +132,7 @@ def test_dispatch_bids_charging_and_rebid_after_a_killed_robot(procs, port, fabr
         fleet["r1"].kill()  # ... and its agent dies with it
         wait_until(lambda: watcher.reached(charge, "done") is not None, 400, "r0's charge done")
         body, poses = watcher.reached(charge, "done")
-        assert _dist(poses["r0"], DOCK) < 0.6 and power0.fraction >= 0.89, (poses, power0.fraction)
+        assert _dist(poses["r0"], DOCK) < 0.6 and power0.fraction >= TARGET - 0.01, (poses, power0.fraction)
         wait_until(lambda: watcher.reached("B", "done") is not None, 300, "task B done by another robot")
         body, poses = watcher.reached("B", "done")
         assert body["robot"] == "f0"

@@ -18,7 +18,9 @@ hunters (``ceil(hunters / prey)``), takes the nearest prey short of hunters for 
 and announces the other places one ``cfp`` at a time (task: the prey and where it is). A free hunter
 bids its straight-line distance to the prey, a busy one refuses, so the nearest free hunter wins
 ("nearest first"); the auctioneer allocates once every hunter it knows has broadcast a map position
-(it could not bid before it is localized), or after ``ALLOCATION_GRACE`` seconds. The winner chases
+(it could not bid before it is localized), or after ``ALLOCATION_GRACE`` seconds, and once it has
+seen every hunter and prey on ``SEEN_ROUNDS`` looks around (so the others, who look around as often,
+know them too); a call stays open ``BID_WINDOW`` seconds at most. The winner chases
 until the prey is caught, by anyone, and then answers ``inform-done``; nobody chases a caught prey.
 
 A hunter answers only the auctioneer's calls and bids only for prey it knows (offered ``prey`` on
@@ -63,6 +65,12 @@ log = logging.getLogger(__name__)
 
 #: seconds the auctioneer waits for every hunter's first map position before it allocates anyway
 ALLOCATION_GRACE = 10.0
+#: looks around (``hello``) in which the auctioneer must have seen a hunter or a prey before it
+#: allocates: every hunter looks around as often, so by then each knows the prey and its auctioneer
+#: (a hunter that missed a ``hello`` would refuse or ignore the call and lose its place to a farther one)
+SEEN_ROUNDS = 2
+#: seconds a call for proposals stays open (it closes at once when every hunter asked has answered)
+BID_WINDOW = 2.0
 
 
 @agent_class("FollowAgent")
@@ -131,6 +139,7 @@ class FollowAgent(NavAgent):
         self._assigned: dict[str, set[str]] = {}  # auctioneer: prey -> hunters chasing it
         self._auctioning: set[str] = set()  # auctioneer: prey with a cfp under way
         self._allocation_task: asyncio.Task | None = None
+        self._rounds_seen: dict[str, int] = {}  # auctioneer: agent/robot -> look-arounds it was seen in
 
     async def created(self) -> None:
         await super().created()
@@ -214,6 +223,8 @@ class FollowAgent(NavAgent):
         self._looked = True
         self.hunter_robots = {h.id: h.robot for h in hellos if "hunter" in h.capabilities}
         self.prey_robots |= {h.robot for h in hellos if "prey" in h.capabilities and h.robot}
+        for name in {*self.hunters, *(h.robot for h in hellos if "prey" in h.capabilities and h.robot)}:
+            self._rounds_seen[name] = self._rounds_seen.get(name, 0) + 1
 
     async def _allocation_loop(self) -> None:
         """Look around every ``replan_interval`` (at least 1 s); the lowest-id hunter allocates."""
@@ -229,6 +240,10 @@ class FollowAgent(NavAgent):
             del self._assigned[p]
         prey = sorted(p for p in self.prey_robots if p not in self.caught and p in self.positions)
         if not prey or not self.hunters:
+            return
+        new = [x for x in (*self.hunters, *prey) if self._rounds_seen.get(x, 0) < SEEN_ROUNDS]
+        if new:  # the other hunters may not have seen them yet: nearest first needs every bid
+            log.debug("%s: seen only just now: %s", self.id, ", ".join(new))
             return
         # Nearest first needs every hunter's bid, and a hunter bids only once it is localized: wait
         # until each known hunter has broadcast a map position (at most ALLOCATION_GRACE seconds,
@@ -262,7 +277,7 @@ class FollowAgent(NavAgent):
             if not others or pos is None:
                 return
             res = await self._initiator.call(
-                {"prey": prey, "x": pos.x, "y": pos.y}, deadline=1.0, participants=others, done_deadline=5.0
+                {"prey": prey, "x": pos.x, "y": pos.y}, deadline=BID_WINDOW, participants=others, done_deadline=5.0
             )
             if res.ok and prey not in self.caught:
                 log.info("%s: %s goes after %s (%.1f m away)", self.id, res.winner, prey, res.cost)
