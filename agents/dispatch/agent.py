@@ -248,21 +248,52 @@ class FleetWorker:
         self._warned: set = set()
         self._next_status = -math.inf
 
+    power = None  # the robot's power:0 proxy, from find_power()
+    has_battery = False
+
     # to provide
     def where(self) -> tuple[float, float] | None:
         raise NotImplementedError
 
     def battery(self) -> float | None:
-        return None
+        """0..1 from the robot's ``power:0`` (see :meth:`find_power`); None without a battery model."""
+        if not self.has_battery or self.power is None:
+            return None
+        return self.power.fraction
 
     def charging(self) -> bool:
-        return False
+        return bool(self.power.charging) if self.power is not None and self.has_battery else False
+
+    def find_power(self) -> None:
+        """Find the robot's ``power:0`` on the agent's ``fabric`` (a worker thread): its battery
+        model, or none (``describe`` says ``battery: false``, or no such device)."""
+        if getattr(self, "fabric", None) is None:
+            return
+        try:
+            p = self.fabric.device(f"{self.robot}:power:0")  # type: ignore[attr-defined]
+            geo = p.describe(timeout=5.0).geometry
+            self.has_battery = bool(geo.get("battery", True))
+            self.power = p
+        except Exception as e:
+            self.has_battery = False
+            log.warning("%s: no power device for %s (%s): no battery model", self.id, self.robot, e)  # type: ignore[attr-defined]
 
     async def perform(self, task: Task) -> str:
         raise NotImplementedError
 
     async def abandon(self, task: Task) -> None:
         """The dispatcher took back ``task`` while it was under way (cancelled): stop doing it."""
+
+    async def wait_charged(self, task: Task, timeout: float) -> str:
+        """On the charger: wait until :meth:`battery` reaches the ``charge`` task's target (at once
+        without a battery model); ``""`` or why not."""
+        target = float(task.args.get("target", self.target))
+        deadline = clock().now() + timeout
+        while (b := self.battery()) is not None and b < target:
+            if clock().now() >= deadline:
+                return f"not charged to {target:.0%} within {timeout:g} s"
+            await clock().asleep(1.0)
+        return ""
 
     # ------------------------------------------------------------------ messages
     def start_worker(self) -> None:
@@ -414,37 +445,15 @@ class FleetAgent(FleetWorker, NavAgent):
         NavAgent.__init__(self, agent_id, **kw)
         self.init_worker(speed=speed, threshold=threshold, target=target, status_every=status_every, agent_id=agent_id)
         self.charge_timeout = number_arg(agent_id, "charge_timeout", charge_timeout, 0.0)
-        self.power = None
-        self.has_battery = True
 
     async def created(self) -> None:
         await NavAgent.created(self)
-        await asyncio.to_thread(self._find_power)
+        await asyncio.to_thread(self.find_power)
         self.start_worker()
-
-    def _find_power(self) -> None:
-        if self.fabric is None:
-            return
-        try:
-            p = self.fabric.device(f"{self.robot}:power:0")
-            geo = p.describe(timeout=5.0).geometry
-            self.has_battery = bool(geo.get("battery", True))
-            self.power = p
-        except Exception as e:
-            self.has_battery = False
-            log.warning("%s: no power device for %s (%s): no battery model", self.id, self.robot, e)
 
     def where(self) -> tuple[float, float] | None:
         p = self.nav.position if self.nav is not None else None
         return (p.x, p.y) if p is not None else None
-
-    def battery(self) -> float | None:
-        if not self.has_battery or self.power is None:
-            return None
-        return self.power.fraction
-
-    def charging(self) -> bool:
-        return bool(self.power.charging) if self.power is not None and self.has_battery else False
 
     async def step(self) -> None:
         await NavAgent.step(self)
@@ -468,10 +477,5 @@ class FleetAgent(FleetWorker, NavAgent):
         if task.kind == "custom":
             await clock().asleep(float(a.get("duration", 0.0)))
         elif task.kind == "charge":
-            target = float(a.get("target", self.target))
-            deadline = clock().now() + self.charge_timeout
-            while self.has_battery and (self.battery() or 0.0) < target:
-                if clock().now() >= deadline:
-                    return f"not charged to {target:.0%} within {self.charge_timeout:g} s"
-                await clock().asleep(1.0)
+            return await self.wait_charged(task, self.charge_timeout)
         return ""
