@@ -273,6 +273,8 @@ class FleetWorker:
             p = self.fabric.device(f"{self.robot}:power:0")  # type: ignore[attr-defined]
             geo = p.describe(timeout=5.0).geometry
             self.has_battery = bool(geo.get("battery", True))
+            if self.has_battery:
+                p.wait_for_data(5.0)  # its first status carries the charge, not "no battery model"
             self.power = p
         except Exception as e:
             self.has_battery = False
@@ -283,6 +285,10 @@ class FleetWorker:
 
     async def abandon(self, task: Task) -> None:
         """The dispatcher took back ``task`` while it was under way (cancelled): stop doing it."""
+
+    def places_left(self) -> list[tuple[float, float]]:
+        """The places the active task still visits, for bids (default: its last place)."""
+        return places(self.active)[-1:] if self.active is not None else []
 
     async def wait_charged(self, task: Task, timeout: float) -> str:
         """On the charger: wait until :meth:`battery` reaches the ``charge`` task's target (at once
@@ -353,9 +359,8 @@ class FleetWorker:
             self._fleet(FleetMsg("refuse", task_id=m.task_id, round=m.round, reason="no pose yet"))
             return
         busy = 0.0
-        if self.active is not None and places(self.active):
-            end = places(self.active)[-1]
-            busy, pose = math.dist(pose, end) / self.speed, end
+        for p in self.places_left():  # the active task's way still ahead
+            busy, pose = busy + math.dist(pose, p) / self.speed, p
         queue = [t for t in self.queue if t.id != task.id]
         b = plan_bid(
             pose, queue, task, speed=self.speed, battery=self.battery(), threshold=self.threshold,

@@ -92,10 +92,10 @@ def power_data(t: float, percent: float, charging: bool = False, low: bool = Fal
 
 def battery_truth(b) -> dict[str, Any]:
     """A :class:`simulator.energy.BatteryState` as an entry of the simulation's ``batteries`` rpc:
-    ``battery`` (false: no battery model), ``fraction``, ``charging``, ``charger`` (nil: not docked),
+    ``battery`` (false: no battery model), ``capacity`` J, ``fraction``, ``charging``, ``charger`` (nil: not docked),
     ``empty``, and the record since the world was built: ``lowest`` fraction, ``flat`` s, ``charged`` J."""
     return {
-        "battery": b.capacity > 0, "fraction": b.fraction, "charging": b.charging, "charger": b.charger,
+        "battery": b.capacity > 0, "capacity": b.capacity, "fraction": b.fraction, "charging": b.charging, "charger": b.charger,
         "empty": b.empty, "lowest": b.lowest, "flat": b.flat, "charged": b.charged,
     }  # fmt: skip
 

@@ -45,7 +45,7 @@ class Simulation(Device):
         return self.rpc("models")
 
     def batteries(self) -> dict[str, dict]:
-        """Every robot's true battery: ``{name: {battery, fraction, charging, charger, empty, lowest,
+        """Every robot's true battery: ``{name: {battery, capacity, fraction, charging, charger, empty, lowest,
         flat, charged}}`` (``docs/protocol.md``; the record since the world was built)."""
         return dict(self.rpc("batteries")["robots"])
 

@@ -91,3 +91,4 @@ def test_power_data_low_event_empty_stop_and_charging(procs, port, fabric_factor
     assert truth["r0"]["charged"] == 0.0 and truth["r0"]["charger"] is None
     assert truth["r1"]["flat"] == 0.0 and truth["r1"]["charged"] > 0.0 and truth["r1"]["charger"] == "dock"
     assert truth["r1"]["lowest"] == pytest.approx(0.1, abs=0.02) and truth["r1"]["battery"] is True
+    assert truth["r1"]["capacity"] == pytest.approx(36.0)

@@ -66,9 +66,17 @@ class FleetCollectAgent(FleetWorker, CollectAgent):
         p = self.pioneer.position if self.pioneer is not None else None
         return (p.x, p.y) if p is not None else None
 
+    def places_left(self) -> list[tuple[float, float]]:
+        """A fetch not yet gripped still visits the object, then its destination."""
+        t = self.active
+        if t is not None and t.kind == "fetch" and not (self.pioneer is not None and self.pioneer.gripper.carrying):
+            return [tuple(t.args["at"]), tuple(t.args["to"])]
+        return FleetWorker.places_left(self)
+
     async def step(self) -> None:
         await CollectAgent.step(self)
-        self.report_status()
+        if self._wake is not None:  # its battery looked up and working: reports say so
+            self.report_status()
 
     async def killed(self) -> None:
         self.stop_worker()
