@@ -278,7 +278,7 @@ class GroundTruth:
     def flat_robots(self) -> list[str]:
         """The robots whose battery truly ran empty (one line each)."""
         return [
-            f"{r}'s battery ran flat ({b['flat']:.0f} s empty of the simulation's record)"
+            f"{r}'s battery ran empty (the simulation's record: lowest {b['lowest']:.0%}, {b['flat']:.1f} s empty)"
             for r, b in sorted(self.batteries.items())
             if b["flat"] > 0.0 or b["lowest"] <= 0.0
         ]

@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass, field
 
 from agents.contractnet import Initiator
-from agents.dispatch.tasks import TaskRequest, TaskStatus, decode_body
+from agents.dispatch.tasks import Refusal, TaskRequest, TaskStatus, decode_body
 from agents.registry import agent_class
 from agents.runtime import Agent
 from agents.services import Hello, Message, Outcome, SendPosition, match
@@ -53,6 +53,7 @@ class _BlobTask:
     drop: Position | None = None  # where a collector put it down
     reason: str = ""  # why the last fetch failed
     task: str = ""  # its dispatcher task (allocation: dispatch)
+    heard: bool = False  # the dispatcher said anything of that task
     to: Position | None = None  # where it goes (allocation: dispatch: one of the depots)
 
 
@@ -274,7 +275,14 @@ class MasterAgent(Agent):
             return  # one call in its bidding phase at a time
 
     def _assign_dispatch(self, now: float) -> None:
-        """Every new blob as a ``fetch`` task to the dispatcher (one task per attempt)."""
+        """Every new blob as a ``fetch`` task to the dispatcher (one task per attempt); a task the
+        dispatcher has not acknowledged within ``bid_deadline`` + 2 s is sent again (it may have
+        started after the request: the dispatcher refuses a second copy of a task it knows)."""
+        for note in self.blobs("assigned"):
+            d = note.data
+            if d.task and not d.heard and now - d.since > self.bid_deadline + 2.0:
+                d.since = now
+                self._submit(note)
         for note in self.blobs("new"):
             d = note.data
             if d.retry_at > now:
@@ -283,12 +291,15 @@ class MasterAgent(Agent):
                 d.to = self.depots[self._submitted % len(self.depots)]
                 self._submitted += 1
             self._assign(note, "", now)
-            d.task = f"{self.id}-{d.id}-{d.attempts}"
+            d.task, d.heard = f"{self.id}-{d.id}-{d.attempts}", False
             self.tasks[d.task] = d.id
-            args = {"object": d.id, "at": [note.position.x, note.position.y], "to": [d.to.x, d.to.y]}
-            task = {"id": d.task, "kind": "fetch", "args": args}
-            self.publish(TaskRequest.SERVICE, TaskRequest("submit", task=task))
-            log.info("%s: %s at (%.2f, %.2f) -> the dispatcher as %s", self.id, d.id, *args["at"], d.task)
+            self._submit(note)
+            log.info("%s: %s at (%.2f, %.2f) -> the dispatcher as %s", self.id, d.id, *note.position.as_tuple()[:2], d.task)
+
+    def _submit(self, note: BoardObject) -> None:
+        d = note.data
+        args = {"object": d.id, "at": [note.position.x, note.position.y], "to": [d.to.x, d.to.y]}
+        self.publish(TaskRequest.SERVICE, TaskRequest("submit", task={"id": d.task, "kind": "fetch", "args": args}))
 
     def on_task_state(self, msg: Message) -> None:
         """The dispatcher's word on a fetch: on a robot (its assignee), done (delivered to its
@@ -302,6 +313,9 @@ class MasterAgent(Agent):
             return
         note = self.board.get(("blob", self.tasks.get(st.task_id, "")))
         if note is None or note.topic != "blob/assigned" or note.data.task != st.task_id:
+            return
+        note.data.heard = True
+        if st.state == "refused" and st.reason == Refusal.DUPLICATE_ID:  # a copy sent again: it has it
             return
         if st.robot:
             note.data.assignee = st.robot
