@@ -105,7 +105,9 @@ def main(argv: list[str] | None = None) -> int:
             for c in COLLECTORS:
                 b = r["record"].get(c)
                 if b is not None:
-                    bits.append(f"{c}_lowest={b['lowest']:.2f} {c}_flat_s={b['flat']:.1f} {c}_charged_J={b['charged']:.0f}")
+                    bits.append(
+                        f"{c}_lowest={b['lowest']:.2f} {c}_flat_s={b['flat']:.1f} {c}_charged_J={b['charged']:.0f}"
+                    )
             print(" ".join(bits), flush=True)
             print(f"  {r['result']}", flush=True)
     return 0

@@ -96,7 +96,8 @@ class Batteries:
 
     Arrays: ``capacity`` and ``energy`` (J), ``coef`` ``(J/m, J/rad, W)``, ``max_charge`` (W, inf
     when unlimited), ``charging`` (bool), ``has`` (bool: the robot has a battery model), the record
-    ``lowest`` (fraction), ``flat`` (s empty) and ``charged`` (J gained while charging); ``dock`` the index of the charger each robot is docked at (-1: none)."""
+    ``lowest`` (fraction), ``flat`` (s empty) and ``charged`` (J gained while charging); ``dock``
+    the index of the charger each robot is docked at (-1: none)."""
 
     def __init__(self, chargers: list[ChargerSpec]) -> None:
         for name, cols in _ARRAYS.items():
@@ -167,7 +168,9 @@ class Batteries:
         before = self.energy
         self.energy = np.where(self.has, np.clip(before - used + gain, 0.0, self.capacity), self.capacity)
         self.charging = self.has & (self.dock >= 0) & (gain > used) & (self.energy < self.capacity)
-        frac = np.divide(self.energy, self.capacity, out=np.ones_like(self.energy), where=self.has & (self.capacity > 0))
+        frac = np.divide(
+            self.energy, self.capacity, out=np.ones_like(self.energy), where=self.has & (self.capacity > 0)
+        )
         self.lowest = np.minimum(self.lowest, frac)
         self.flat = self.flat + np.where(self.empty, dt, 0.0)
         self.charged = self.charged + np.where(self.charging, self.energy - before, 0.0)

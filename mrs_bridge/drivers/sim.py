@@ -153,7 +153,18 @@ class SimulationDriver(Driver):
             d.check_timeout()
 
     def ops(self, addr):
-        return ["get_pose", "get_poses", "set_pose", "models", "contacts", "batteries", "pause", "step", "reset", "remove_model"]
+        return [
+            "get_pose",
+            "get_poses",
+            "set_pose",
+            "models",
+            "contacts",
+            "batteries",
+            "pause",
+            "step",
+            "reset",
+            "remove_model",
+        ]
 
     def geometry(self, addr):
         return {

@@ -95,8 +95,8 @@ def battery_truth(b) -> dict[str, Any]:
     ``battery`` (false: no battery model), ``capacity`` J, ``fraction``, ``charging``, ``charger`` (nil: not docked),
     ``empty``, and the record since the world was built: ``lowest`` fraction, ``flat`` s, ``charged`` J."""
     return {
-        "battery": b.capacity > 0, "capacity": b.capacity, "fraction": b.fraction, "charging": b.charging, "charger": b.charger,
-        "empty": b.empty, "lowest": b.lowest, "flat": b.flat, "charged": b.charged,
+        "battery": b.capacity > 0, "capacity": b.capacity, "fraction": b.fraction, "charging": b.charging,
+        "charger": b.charger, "empty": b.empty, "lowest": b.lowest, "flat": b.flat, "charged": b.charged,
     }  # fmt: skip
 
 

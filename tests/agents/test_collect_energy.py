@@ -183,7 +183,10 @@ def test_energy_verdicts_judge_the_simulations_battery_record(energy_sc):
 
 @pytest.mark.parametrize(
     "end, where",
-    [("{event: delivered, never_flat: yes please}", "end.never_flat"), ("{event: delivered, charged: -1}", "end.charged")],
+    [
+        ("{event: delivered, never_flat: yes please}", "end.never_flat"),
+        ("{event: delivered, charged: -1}", "end.charged"),
+    ],
 )
 def test_bad_energy_end_keys_are_one_line(tmp_path, end, where):
     (tmp_path / "w.world").write_text("")

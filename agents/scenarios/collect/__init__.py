@@ -15,4 +15,14 @@ from .fleet import FleetCollectAgent
 from .master import MasterAgent
 from .messages import BLOB, COLLECT, COLLECTED, BlobReport
 
-__all__ = ["BLOB", "COLLECT", "COLLECTED", "BlobReport", "CollectAgent", "ExploreAgent", "FetchResult", "FleetCollectAgent", "MasterAgent"]
+__all__ = [
+    "BLOB",
+    "COLLECT",
+    "COLLECTED",
+    "BlobReport",
+    "CollectAgent",
+    "ExploreAgent",
+    "FetchResult",
+    "FleetCollectAgent",
+    "MasterAgent",
+]

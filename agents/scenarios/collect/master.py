@@ -68,8 +68,8 @@ class MasterAgent(Agent):
     (``allocation: direct``, a ``collect`` message) or to the winner of a contract-net call
     (``allocation: contract_net``) or is submitted to the dispatcher ``dispatcher`` (an agent id)
     as a ``fetch`` task to one of ``depots`` ([[x, y], ...], map frame; the blobs take them in
-    turn; ``allocation: dispatch``), followed on ``task_state``. A failed or timed-out fetch (``task_timeout`` s) is offered again
-    after ``retry_after`` seconds. A blob brought home is published as ``Outcome("delivered")``.
+    turn; ``allocation: dispatch``), followed on ``task_state``. A failed or timed-out fetch
+    (``task_timeout`` s) is offered again after ``retry_after`` seconds. A blob brought home is published as ``Outcome("delivered")``.
     """
 
     capabilities = ("master",)
@@ -103,7 +103,9 @@ class MasterAgent(Agent):
         self.dispatcher = str(dispatcher)
         self.depots = [_point(agent_id, f"depots[{i}]", d) for i, d in enumerate(depots or [])]
         if allocation == "dispatch" and not self.depots:
-            raise ValueError(f"agent {agent_id}: allocation dispatch needs depots, where blobs go; e.g. depots: [[-3, 2]]")
+            raise ValueError(
+                f"agent {agent_id}: allocation dispatch needs depots, where blobs go; e.g. depots: [[-3, 2]]"
+            )
         self.tasks: dict[str, str] = {}  # dispatcher task id -> blob id
         self._submitted = 0
         self.board = Board()
@@ -294,7 +296,9 @@ class MasterAgent(Agent):
             d.task, d.heard = f"{self.id}-{d.id}-{d.attempts}", False
             self.tasks[d.task] = d.id
             self._submit(note)
-            log.info("%s: %s at (%.2f, %.2f) -> the dispatcher as %s", self.id, d.id, *note.position.as_tuple()[:2], d.task)
+            log.info(
+                "%s: %s at (%.2f, %.2f) -> the dispatcher as %s", self.id, d.id, *note.position.as_tuple()[:2], d.task
+            )
 
     def _submit(self, note: BoardObject) -> None:
         d = note.data
