@@ -40,6 +40,7 @@ CLASS_MODULES: dict[str, str] = {
     "ExploreAgent": "agents.scenarios.collect.explorer",
     "CollectAgent": "agents.scenarios.collect.collector",
     "MasterAgent": "agents.scenarios.collect.master",
+    "FleetCollectAgent": "agents.scenarios.collect.fleet",
     "SwarmAgent": "agents.scenarios.swarm.agents",
     "SwarmMonitor": "agents.scenarios.swarm.monitor",
     "ThesisSwarmAgent": "agents.scenarios.swarm.thesis",

@@ -500,7 +500,12 @@ class Runner:
             if e.event is not None:
                 got = t.subjects.get(e.event, {})
                 if len(got) >= e.count:
-                    self.result = (True, "; ".join(list(got.values())[: e.count]))
+                    truth = self._truth_problems()
+                    if truth:
+                        self.result = (False, f"ground truth: {'; '.join(truth)}")
+                    else:
+                        seen = f" (ground truth: {self.truth.summary()})" if self.truth and self.truth.samples else ""
+                        self.result = (True, "; ".join(list(got.values())[: e.count]) + seen)
                     return
             elif self.all_alive_at is not None and now - self.all_alive_at >= e.duration:
                 truth = self._truth_problems()
@@ -524,7 +529,8 @@ class Runner:
             self.result = (False, why)
 
     def _sample_truth(self, now: float) -> None:
-        """True poses for ``end.travel``/``end.clearance``, every SAMPLE_PERIOD s once all agents live."""
+        """True poses for ``end.travel``/``end.clearance`` and the batteries for ``end.never_flat`` /
+        ``end.charged``, every SAMPLE_PERIOD s once all agents live; a robot run flat ends the run."""
         if self.truth is None or not self.truth.samples or self.all_alive_at is None or now < self._next_sample:
             return
         self._next_sample = now + SAMPLE_PERIOD
@@ -532,6 +538,10 @@ class Runner:
             self.truth.sample()
         except Exception as e:  # counted as a problem at the end if it leaves no samples
             self.out.say(f"ground truth sample failed: {type(e).__name__}: {e}")
+            return
+        flat = self.truth.flat_robots() if self.end.never_flat else []
+        if flat and self.result is None:  # the battery record says so: no need to wait for the end
+            self.result = (False, f"ground truth: {'; '.join(flat)}")
 
     def _truth_problems(self) -> list[str]:
         if self.truth is None or not self.truth.samples:

@@ -68,7 +68,7 @@ _REHEARSE = ("world", "robot", "nav", "pioneer", "laser", "node", "seed")
 _PIONEERS = ("P2DX", "P3AT")  # mrs_bridge.emulators.p2os.DIST_CONV
 _LASERS = ("URG-04LX", "UTM-30LX")  # mrs_bridge.emulators.urg.SENSORS
 _AGENT = ("type", "robot", "id", "args", "host", "machine", "count")
-_END = ("event", "count", "timeout", "duration", "travel", "clearance")
+_END = ("event", "count", "timeout", "duration", "travel", "clearance", "never_flat", "charged")
 _NAV = ("vfh", "nd", "snd")
 
 
@@ -133,7 +133,9 @@ class End:
     ``duration`` seconds without a failed outcome (success); ``timeout`` seconds: failure. With a
     simulator, ``travel`` (m) and ``clearance`` (m) are judged on ground truth (:mod:`agents.verdict`):
     every agent's robot must have truly driven at least ``travel`` metres and kept its centre at
-    least ``clearance`` metres from every wall of the map."""
+    least ``clearance`` metres from every wall of the map; with ``never_flat`` no agent's robot's
+    battery may ever run empty (the run fails the moment one does), and at least ``charged``
+    of them must have truly gained charge on a charger (the simulation's battery record)."""
 
     event: str | None = None
     count: int = 1
@@ -141,6 +143,8 @@ class End:
     duration: float | None = None
     travel: float | None = None
     clearance: float | None = None
+    never_flat: bool = False
+    charged: int = 0
 
 
 @dataclass(frozen=True)
@@ -354,6 +358,7 @@ def _application(c: _Ctx, name: str, raw: Any, agent_types: dict[str, str]) -> A
             )
     end = _end(c, f"{where}.end", m["end"])
     truth = [k for k in ("travel", "clearance") if getattr(end, k) is not None]
+    truth += [k for k in ("never_flat", "charged") if getattr(end, k)]
     if truth and sim is None:
         why = "is judged on the simulator's ground truth; add a 'simulator' or remove it"
         raise c.fail(f"{where}.end.{truth[0]}", why)
@@ -468,7 +473,11 @@ def _end(c: _Ctx, where: str, raw: Any) -> End:
         raise c.fail(f"{where}.timeout", f"{timeout:g} s must be longer than the duration {duration:g} s")
     travel = None if m.get("travel") is None else c.number(m["travel"], f"{where}.travel")
     clearance = None if m.get("clearance") is None else c.number(m["clearance"], f"{where}.clearance")
-    return End(event, count, timeout, duration, travel, clearance)
+    never_flat = m.get("never_flat", False)
+    if not isinstance(never_flat, bool):
+        raise c.fail(f"{where}.never_flat", f"must be true or false, got {never_flat!r}")
+    charged = c.whole(m["charged"], f"{where}.charged", lo=0) if "charged" in m else 0
+    return End(event, count, timeout, duration, travel, clearance, never_flat, charged)
 
 
 # ---------------------------------------------------------------------------- classes and arguments

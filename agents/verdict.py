@@ -27,7 +27,12 @@ agrees:
 - a ``duration`` run with ``end.travel`` / ``end.clearance``: the true poses of every agent's robot,
   sampled every :data:`SAMPLE_PERIOD` seconds, must add up to at least ``travel`` metres each and
   keep the robot's centre at least ``clearance`` metres from every occupied cell of the map
-  (``sim:map:0``, its Euclidean distance transform, ``scipy.ndimage.distance_transform_edt``).
+  (``sim:map:0``, its Euclidean distance transform, ``scipy.ndimage.distance_transform_edt``);
+- ``end.never_flat`` / ``end.charged`` (energy): the simulation's own battery record of every
+  agent's robot (rpc ``batteries``: the lowest charge, the seconds spent empty and the joules
+  gained while charging, kept on every simulation step, so no moment between samples is missed):
+  no robot may ever have run empty, and at least ``charged`` robots must have truly charged
+  (gained at least :data:`CHARGED_FRACTION` of their capacity docked at a charger).
 
 A claim the truth contradicts counts as a failed outcome, with the reason in one line.
 
@@ -46,6 +51,7 @@ from .scenario import Application, Scenario
 __all__ = [
     "ARRIVE_TOLERANCE",
     "CATCH_SLACK",
+    "CHARGED_FRACTION",
     "DELIVER_TOLERANCE",
     "NEAR_STATION",
     "SAMPLE_PERIOD",
@@ -68,6 +74,9 @@ DELIVER_TOLERANCE = 1.0
 NEAR_STATION = 2.5
 #: seconds between true-pose samples of a duration run
 SAMPLE_PERIOD = 0.5
+#: fraction of its capacity a robot must have gained on chargers to count as truly charged (a robot
+#: that only drove across a charger gains a trace)
+CHARGED_FRACTION = 0.1
 SIM_DEVICE = "sim:simulation:0"
 MAP_DEVICE = "sim:map:0"
 
@@ -158,11 +167,20 @@ class GroundTruth:
         #: robot -> its true battery record, for the prey that recharge (subscribed from the start)
         self.energy: dict[str, EnergyTruth] = {r: EnergyTruth(get_power(r)) for r in recharging}
         self._stations: list[tuple[str, float, float]] | None = None
+        self.batteries: dict[str, dict] = {}  # robot -> its latest battery record (energy ends)
 
     @property
     def samples(self) -> bool:
-        """Whether the run needs true poses sampled (``end.travel`` or ``end.clearance``)."""
+        """Whether the run samples the truth: poses (``end.travel``, ``end.clearance``) or batteries (energy)."""
+        return self.poses or self.energy
+
+    @property
+    def poses(self) -> bool:
         return self.end.travel is not None or self.end.clearance is not None
+
+    @property
+    def energy(self) -> bool:
+        return self.end.never_flat or self.end.charged > 0
 
     def _world(self, robot: str):
         return self.world_of.get(robot, self.sim)
@@ -317,7 +335,13 @@ class GroundTruth:
         return float(dist[row, col])
 
     def sample(self) -> None:
-        """One true pose per robot: distance travelled and the nearest wall so far."""
+        """One true pose per robot: distance travelled and the nearest wall so far; the batteries'
+        record when the end judges energy."""
+        if self.energy:
+            record = self.sim.batteries()
+            self.batteries = {r: record[r] for r in self.robots if r in record and record[r].get("battery")}
+        if not self.poses:
+            return
         if self.end.clearance is not None and self._clear is None:
             self._load_clearance()
         for r in self.robots:
@@ -328,9 +352,20 @@ class GroundTruth:
             if self._clear is not None:
                 self.nearest_wall[r] = min(self.nearest_wall.get(r, math.inf), self.wall_distance(x, y))
 
+    def flat_robots(self) -> list[str]:
+        """The robots whose battery truly ran empty (one line each)."""
+        return [
+            f"{r}'s battery ran empty (the simulation's record: lowest {b['lowest']:.0%}, {b['flat']:.1f} s empty)"
+            for r, b in sorted(self.batteries.items())
+            if b["flat"] > 0.0 or b["lowest"] <= 0.0
+        ]
+
     def problems(self) -> list[str]:
-        """What the sampled truth says against the run's ``travel`` and ``clearance``."""
-        out = []
+        """What the sampled truth says against the run's ``travel``, ``clearance`` and energy."""
+        out = self.flat_robots() if self.end.never_flat else []
+        charged = [r for r, b in self.batteries.items() if b["charged"] >= CHARGED_FRACTION * b["capacity"] > 0.0]
+        if len(charged) < self.end.charged:
+            out.append(f"{len(charged)} robot(s) truly charged (< charged {self.end.charged})")
         for r in self.robots:
             if self.end.travel is not None and self.travelled.get(r, 0.0) < self.end.travel:
                 out.append(f"{r} travelled {self.travelled.get(r, 0.0):.2f} m (< travel {self.end.travel:g} m)")
@@ -348,6 +383,9 @@ class GroundTruth:
                 bits.append(f"travelled {self.travelled[r]:.1f} m")
             if r in self.nearest_wall:
                 bits.append(f"nearest wall {self.nearest_wall[r]:.2f} m")
+            b = self.batteries.get(r)
+            if b is not None:
+                bits.append(f"battery lowest {b['lowest']:.0%}, {b['flat']:.0f} s flat, charged {b['charged']:.0f} J")
             if bits:
                 parts.append(f"{r} {', '.join(bits)}")
         return "; ".join(parts)

@@ -15,6 +15,10 @@ robot that the world steps with everything else (:meth:`simulator.world.World.st
   when the charger sets one, is docked and gains the charger's ``rate`` watts (the fastest
   charger it is docked at; capped by the battery's own ``max_charge``) up to its capacity.
 
+* **record**: per robot, the lowest charge, the seconds spent empty and the joules gained while
+  charging since the world was built -- judged on every step, for verdicts that must not miss a
+  moment between samples (``batteries`` of the simulation interface).
+
 Everything is a few numpy operations over all robots (and robots x chargers for docking): no
 Python loop per robot in the step.
 
@@ -48,15 +52,20 @@ PIONEER_DX = BatterySpec(capacity=PIONEER_CAPACITY, per_metre=20.0, per_radian=4
 PIONEER_AT = BatterySpec(capacity=PIONEER_CAPACITY, per_metre=100.0, per_radian=40.0, watts=30.0)
 """Pioneer 3AT: 2-4 h run time on three batteries (module docstring)."""
 
-_ARRAYS = {"capacity": 0, "energy": 0, "coef": 3, "max_charge": 0, "charging": 0, "has": 0}
+_ARRAYS = {
+    "capacity": 0, "energy": 0, "coef": 3, "max_charge": 0, "charging": 0, "has": 0,
+    "lowest": 0, "flat": 0, "charged": 0,
+}  # fmt: skip
 
 
 @dataclass(frozen=True)
 class BatteryState:
     """One robot's battery after the last step: ``energy`` and ``capacity`` in joules,
     ``fraction`` = energy / capacity, ``charging`` (docked at a charger and not full, or gaining),
-    ``charger`` (the name of the charger it is docked at, or None), ``empty``. A robot without a
-    battery model reads ``capacity`` 0, ``fraction`` 1 and never empties."""
+    ``charger`` (the name of the charger it is docked at, or None), ``empty``; its record since the
+    world was built: ``lowest`` fraction, ``flat`` seconds spent empty and ``charged`` joules
+    gained while charging (the ground truth of an energy verdict, judged on every step). A robot
+    without a battery model reads ``capacity`` 0, ``fraction`` 1 and never empties."""
 
     energy: float
     capacity: float
@@ -64,6 +73,9 @@ class BatteryState:
     charging: bool
     charger: str | None
     empty: bool
+    lowest: float = 1.0
+    flat: float = 0.0
+    charged: float = 0.0
 
 
 def battery_problem(b: BatterySpec) -> str | None:
@@ -83,8 +95,9 @@ class Batteries:
     """Every robot's battery by row (the rows of :class:`simulator.drive.Drives`) and the chargers.
 
     Arrays: ``capacity`` and ``energy`` (J), ``coef`` ``(J/m, J/rad, W)``, ``max_charge`` (W, inf
-    when unlimited), ``charging`` (bool), ``has`` (bool: the robot has a battery model);
-    ``dock`` the index of the charger each robot is docked at (-1: none)."""
+    when unlimited), ``charging`` (bool), ``has`` (bool: the robot has a battery model), the record
+    ``lowest`` (fraction), ``flat`` (s empty) and ``charged`` (J gained while charging); ``dock``
+    the index of the charger each robot is docked at (-1: none)."""
 
     def __init__(self, chargers: list[ChargerSpec]) -> None:
         for name, cols in _ARRAYS.items():
@@ -110,6 +123,9 @@ class Batteries:
             "max_charge": b.max_charge if b.max_charge > 0 else np.inf,
             "charging": False,
             "has": spec is not None,
+            "lowest": b.charge if spec is not None else 1.0,
+            "flat": 0.0,
+            "charged": 0.0,
         }
         for name, cols in _ARRAYS.items():
             arr = getattr(self, name)
@@ -152,6 +168,12 @@ class Batteries:
         before = self.energy
         self.energy = np.where(self.has, np.clip(before - used + gain, 0.0, self.capacity), self.capacity)
         self.charging = self.has & (self.dock >= 0) & (gain > used) & (self.energy < self.capacity)
+        frac = np.divide(
+            self.energy, self.capacity, out=np.ones_like(self.energy), where=self.has & (self.capacity > 0)
+        )
+        self.lowest = np.minimum(self.lowest, frac)
+        self.flat = self.flat + np.where(self.empty, dt, 0.0)
+        self.charged = self.charged + np.where(self.charging, self.energy - before, 0.0)
 
     def state(self, row: int) -> BatteryState:
         cap = float(self.capacity[row])
@@ -165,8 +187,13 @@ class Batteries:
             charging=bool(self.charging[row]),
             charger=self.chargers[d].name if d >= 0 else None,
             empty=bool(self.empty[row]),
+            lowest=float(self.lowest[row]),
+            flat=float(self.flat[row]),
+            charged=float(self.charged[row]),
         )
 
     def set_fraction(self, row: int, fraction: float) -> None:
         """Set a robot's charge (tests, the simulation interface)."""
         self.energy[row] = float(np.clip(fraction, 0.0, 1.0)) * self.capacity[row]
+        if self.has[row]:
+            self.lowest[row] = min(self.lowest[row], float(np.clip(fraction, 0.0, 1.0)))

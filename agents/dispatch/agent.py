@@ -254,15 +254,37 @@ class FleetWorker:
         self._warned: set = set()
         self._next_status = -math.inf
 
+    power = None  # the robot's power:0 proxy, from find_power()
+    has_battery = False
+
     # to provide
     def where(self) -> tuple[float, float] | None:
         raise NotImplementedError
 
     def battery(self) -> float | None:
-        return None
+        """0..1 from the robot's ``power:0`` (see :meth:`find_power`); None without a battery model."""
+        if not self.has_battery or self.power is None:
+            return None
+        return self.power.fraction
 
     def charging(self) -> bool:
-        return False
+        return bool(self.power.charging) if self.power is not None and self.has_battery else False
+
+    def find_power(self) -> None:
+        """Find the robot's ``power:0`` on the agent's ``fabric`` (a worker thread): its battery
+        model, or none (``describe`` says ``battery: false``, or no such device)."""
+        if getattr(self, "fabric", None) is None:
+            return
+        try:
+            p = self.fabric.device(f"{self.robot}:power:0")  # type: ignore[attr-defined]
+            geo = p.describe(timeout=5.0).geometry
+            self.has_battery = bool(geo.get("battery", True))
+            if self.has_battery:
+                p.wait_for_data(5.0)  # its first status carries the charge, not "no battery model"
+            self.power = p
+        except Exception as e:
+            self.has_battery = False
+            log.warning("%s: no power device for %s (%s): no battery model", self.id, self.robot, e)  # type: ignore[attr-defined]
 
     def travel(self):
         """``travel(a, b)`` seconds between two points for bids (None for unreachable), or None:
@@ -275,6 +297,21 @@ class FleetWorker:
 
     async def abandon(self, task: Task) -> None:
         """The dispatcher took back ``task`` while it was under way (cancelled): stop doing it."""
+
+    def places_left(self) -> list[tuple[float, float]]:
+        """The places the active task still visits, for bids (default: its last place)."""
+        return places(self.active)[-1:] if self.active is not None else []
+
+    async def wait_charged(self, task: Task, timeout: float) -> str:
+        """On the charger: wait until :meth:`battery` reaches the ``charge`` task's target (at once
+        without a battery model); ``""`` or why not."""
+        target = float(task.args.get("target", self.target))
+        deadline = clock().now() + timeout
+        while (b := self.battery()) is not None and b < target:
+            if clock().now() >= deadline:
+                return f"not charged to {target:.0%} within {timeout:g} s"
+            await clock().asleep(1.0)
+        return ""
 
     # ------------------------------------------------------------------ messages
     def start_worker(self) -> None:
@@ -334,22 +371,24 @@ class FleetWorker:
             self._fleet(FleetMsg("refuse", task_id=m.task_id, round=m.round, reason="no pose yet"))
             return
         travel = self.travel()
-        args = (pose, [t for t in self.queue if t.id != task.id], task, self.active, self.battery(), travel)
+        ahead = self.places_left()  # read on the loop: the active task's way still ahead
+        args = (pose, [t for t in self.queue if t.id != task.id], task, ahead, self.battery(), travel)
         if travel is None:
             self._send_bid(m, self._cost(*args), self.active is not None)
         else:  # a planner is asked: off the loop, answered when done
             self._require_host().spawn(self._bid_off_loop(m, args), f"{self.id}: bid {m.task_id}")  # type: ignore[attr-defined]
 
     async def _bid_off_loop(self, m: DispatchMsg, args: tuple) -> None:
-        self._send_bid(m, await asyncio.to_thread(self._cost, *args), args[3] is not None)
+        busy = self.active is not None
+        self._send_bid(m, await asyncio.to_thread(self._cost, *args), busy)
 
-    def _cost(self, pose, queue, task, active, battery, travel):
-        """The bid (:func:`plan_bid`) for ``task`` from ``pose`` after ``active`` and ``queue``."""
+    def _cost(self, pose, queue, task, ahead, battery, travel):
+        """The bid (:func:`plan_bid`) for ``task`` from ``pose`` after the places ``ahead`` (the
+        active task's) and ``queue``."""
         busy = 0.0
-        if active is not None and places(active):
-            end = places(active)[-1]
-            t = travel(pose, end) if travel is not None else None
-            busy, pose = (t if t is not None else math.dist(pose, end) / self.speed), end
+        for p in ahead:
+            t = travel(pose, p) if travel is not None else None
+            busy, pose = busy + (t if t is not None else math.dist(pose, p) / self.speed), p
         return plan_bid(
             pose, queue, task, speed=self.speed, travel=travel, battery=battery, threshold=self.threshold,
             target=self.target, busy_until=busy,
@@ -442,39 +481,17 @@ class FleetAgent(FleetWorker, NavAgent):
         NavAgent.__init__(self, agent_id, **kw)
         self.init_worker(speed=speed, threshold=threshold, target=target, status_every=status_every, agent_id=agent_id)
         self.charge_timeout = number_arg(agent_id, "charge_timeout", charge_timeout, 0.0)
-        self.power = None
-        self.has_battery = True
         self._path: PathTravel | None = None
         self._said_straight = False
 
     async def created(self) -> None:
         await NavAgent.created(self)
-        await asyncio.to_thread(self._find_power)
+        await asyncio.to_thread(self.find_power)
         self.start_worker()
-
-    def _find_power(self) -> None:
-        if self.fabric is None:
-            return
-        try:
-            p = self.fabric.device(f"{self.robot}:power:0")
-            geo = p.describe(timeout=5.0).geometry
-            self.has_battery = bool(geo.get("battery", True))
-            self.power = p
-        except Exception as e:
-            self.has_battery = False
-            log.warning("%s: no power device for %s (%s): no battery model", self.id, self.robot, e)
 
     def where(self) -> tuple[float, float] | None:
         p = self.nav.position if self.nav is not None else None
         return (p.x, p.y) if p is not None else None
-
-    def battery(self) -> float | None:
-        if not self.has_battery or self.power is None:
-            return None
-        return self.power.fraction
-
-    def charging(self) -> bool:
-        return bool(self.power.charging) if self.power is not None and self.has_battery else False
 
     def travel(self):
         """Path length over ``speed`` from its planner's ``rpc/plan`` (:class:`PathTravel`)."""
@@ -511,10 +528,5 @@ class FleetAgent(FleetWorker, NavAgent):
         if task.kind == "custom":
             await clock().asleep(float(a.get("duration", 0.0)))
         elif task.kind == "charge":
-            target = float(a.get("target", self.target))
-            deadline = clock().now() + self.charge_timeout
-            while self.has_battery and (self.battery() or 0.0) < target:
-                if clock().now() >= deadline:
-                    return f"not charged to {target:.0%} within {self.charge_timeout:g} s"
-                await clock().asleep(1.0)
+            return await self.wait_charged(task, self.charge_timeout)
         return ""

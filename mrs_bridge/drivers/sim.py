@@ -153,7 +153,18 @@ class SimulationDriver(Driver):
             d.check_timeout()
 
     def ops(self, addr):
-        return ["get_pose", "get_poses", "set_pose", "models", "contacts", "pause", "step", "reset", "remove_model"]
+        return [
+            "get_pose",
+            "get_poses",
+            "set_pose",
+            "models",
+            "contacts",
+            "batteries",
+            "pause",
+            "step",
+            "reset",
+            "remove_model",
+        ]
 
     def geometry(self, addr):
         return {
@@ -185,6 +196,8 @@ class SimulationDriver(Driver):
                 return {"robots": w.robot_names, "objects": [n for n in w.model_names if n not in w.robot_names]}
             if op == "contacts":
                 return w.contacts()
+            if op == "batteries":  # every robot's true battery and its record (the energy verdicts)
+                return {"t": w.time, "robots": {n: simmsgs.battery_truth(w.battery(n)) for n in w.robot_names}}
             if op == "pause":
                 w.pause(get_bool(args, "paused", True))
                 return {"paused": w.paused}

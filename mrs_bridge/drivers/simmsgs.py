@@ -17,6 +17,7 @@ from rsal.interfaces.power import lead_acid_volts
 from rsal.msgs import BlobData, BlobfinderData, GripperData, PowerData, RangerData
 
 __all__ = [
+    "battery_truth",
     "battery_volts",
     "blobfinder_data",
     "blobfinder_geometry",
@@ -87,6 +88,16 @@ def power_data(t: float, percent: float, charging: bool = False, low: bool = Fal
     """The simulated battery at ``percent`` charge (a :class:`simulator.energy.BatteryState`'s
     ``fraction`` times 100)."""
     return PowerData(t, battery_volts(percent), min(100.0, max(0.0, percent)), bool(charging), bool(low))
+
+
+def battery_truth(b) -> dict[str, Any]:
+    """A :class:`simulator.energy.BatteryState` as an entry of the simulation's ``batteries`` rpc:
+    ``battery`` (false: no battery model), ``capacity`` J, ``fraction``, ``charging``, ``charger`` (nil: not docked),
+    ``empty``, and the record since the world was built: ``lowest`` fraction, ``flat`` s, ``charged`` J."""
+    return {
+        "battery": b.capacity > 0, "capacity": b.capacity, "fraction": b.fraction, "charging": b.charging,
+        "charger": b.charger, "empty": b.empty, "lowest": b.lowest, "flat": b.flat, "charged": b.charged,
+    }  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------- geometry

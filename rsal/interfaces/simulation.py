@@ -44,6 +44,11 @@ class Simulation(Device):
     def models(self) -> dict:
         return self.rpc("models")
 
+    def batteries(self) -> dict[str, dict]:
+        """Every robot's true battery: ``{name: {battery, capacity, fraction, charging, charger, empty, lowest,
+        flat, charged}}`` (``docs/protocol.md``; the record since the world was built)."""
+        return dict(self.rpc("batteries")["robots"])
+
     def pause(self, paused: bool = True) -> bool:
         return bool(self.rpc("pause", paused=paused)["paused"])
 

@@ -83,3 +83,12 @@ def test_power_data_low_event_empty_stop_and_charging(procs, port, fabric_factor
     rec = next(e for e in events["r1"] if e["event"] == RECOVERED_EVENT)
     assert rec["percent"] >= 25.0
     wait_until(lambda: not power["r1"].latest.low, 5, "r1's data to clear the low flag")
+
+    # the simulation's own record of every battery (ground truth for energy verdicts): r0 ran flat
+    # and has stayed empty, r1 gained charge on the dock and never ran flat
+    truth = sim.batteries()
+    assert truth["r0"]["empty"] and truth["r0"]["lowest"] == 0.0 and truth["r0"]["flat"] > 3.0
+    assert truth["r0"]["charged"] == 0.0 and truth["r0"]["charger"] is None
+    assert truth["r1"]["flat"] == 0.0 and truth["r1"]["charged"] > 0.0 and truth["r1"]["charger"] == "dock"
+    assert truth["r1"]["lowest"] == pytest.approx(0.1, abs=0.02) and truth["r1"]["battery"] is True
+    assert truth["r1"]["capacity"] == pytest.approx(36.0)

@@ -142,6 +142,26 @@ def test_an_empty_robot_on_a_charger_charges_and_moves_again():
     assert w.get_pose("r0")[0] > 0.3
 
 
+def test_the_record_keeps_the_lowest_charge_seconds_flat_and_joules_charged():
+    dock = ChargerSpec("c0", pose=(-3.0, 0.0, 0.0), rate=100.0, distance=0.3)
+    w = world(bot("r0"), bot("r1", (5.0, 0.0, 0.0)), chargers=[dock])
+    w.set_battery("r0", 0.01)
+    w.set_velocity("r0", 0.5, 0.0)  # off the charger, runs flat after about 2 m, then waits empty
+    w.step(100)
+    b = w.battery("r0")
+    assert b.empty and b.lowest == 0.0 and b.charged == 0.0
+    assert 3.0 < b.flat < 7.0  # flat after 100 J at 55 J/s, of 10 s
+    r1 = w.battery("r1")
+    assert r1.flat == 0.0 and r1.lowest == pytest.approx(1.0 - 50.0 / 10_000.0) and r1.charged == 0.0
+    w.set_pose("r0", -3.0, 0.0, 0.0)  # onto the charger: net 95 W for 2 s
+    w.step(20)
+    b = w.battery("r0")
+    assert b.charging and b.charger == "c0" and b.charged == pytest.approx(190.0, rel=0.01)
+    assert b.lowest == 0.0 and not b.empty
+    w.reset()
+    assert w.battery("r0").flat == 0.0 and w.battery("r0").lowest == 1.0
+
+
 def test_rows_stay_with_their_robots_when_one_is_removed_and_reset_restores_the_charge():
     w = world(bot("a"), bot("b", (3.0, 0.0, 0.0)), bot("c", (6.0, 0.0, 0.0)))
     w.set_battery("c", 0.25)

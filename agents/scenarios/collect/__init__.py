@@ -2,6 +2,7 @@
 
 - :mod:`.explorer`: :class:`ExploreAgent` (wall-following with a blobfinder, reports blobs);
 - :mod:`.collector`: :class:`CollectAgent` (navigation and gripper, fetches blobs home);
+- :mod:`.fleet`: :class:`FleetCollectAgent` (a collector that works for the fleet dispatcher);
 - :mod:`.master`: :class:`MasterAgent` (the blackboard; direct or contract-net allocation);
 - :mod:`.messages`: the ``blob`` / ``collect`` / ``collected`` services.
 
@@ -10,7 +11,18 @@ Notes: ``docs/scenarios/find_collect.md``; scenario file ``deploy/scenarios/find
 
 from .collector import CollectAgent, FetchResult
 from .explorer import ExploreAgent
+from .fleet import FleetCollectAgent
 from .master import MasterAgent
 from .messages import BLOB, COLLECT, COLLECTED, BlobReport
 
-__all__ = ["BLOB", "COLLECT", "COLLECTED", "BlobReport", "CollectAgent", "ExploreAgent", "FetchResult", "MasterAgent"]
+__all__ = [
+    "BLOB",
+    "COLLECT",
+    "COLLECTED",
+    "BlobReport",
+    "CollectAgent",
+    "ExploreAgent",
+    "FetchResult",
+    "FleetCollectAgent",
+    "MasterAgent",
+]

@@ -155,14 +155,15 @@ class CollectAgent(RobotAgent):
         self.publish(COLLECTED, body)
 
     # ------------------------------------------------------------------ the fetch
-    async def fetch(self, blob: str, x: float, y: float) -> FetchResult:
-        """Fetch the blob at (``x``, ``y``) home; never raises for a failure, returns it."""
+    async def fetch(self, blob: str, x: float, y: float, home: Position | None = None) -> FetchResult:
+        """Fetch the blob at (``x``, ``y``) to ``home`` (default: this collector's home); never
+        raises for a failure, returns it."""
         if self.busy is not None:
             return FetchResult(False, f"busy with {self.busy}")
         self.busy = blob
         t0 = clock().now()
         try:
-            res = await self._fetch(blob, Position(x, y))
+            res = await self._fetch(blob, Position(x, y), home or self.home)
         except Exception as e:  # a device vanished, an rpc failed: report, stay usable
             log.exception("%s: fetching %s failed", self.id, blob)
             res = FetchResult(False, f"{type(e).__name__}: {e}")
@@ -182,7 +183,7 @@ class CollectAgent(RobotAgent):
             await self._safe_stop()
         return res
 
-    async def _fetch(self, blob: str, spot: Position) -> FetchResult:
+    async def _fetch(self, blob: str, spot: Position, home: Position) -> FetchResult:
         r: NavRobot = self.pioneer  # type: ignore[assignment]
         g = r.gripper
         # 1. to just before the blob, facing it
@@ -206,9 +207,9 @@ class CollectAgent(RobotAgent):
         await self._wait(g.lift_up(), 10.0)
         # 4. home
         self.task_state = f"carrying {blob} home"
-        err = await self._goto(self.home)
+        err = await self._goto(home)
         if err:
-            err2 = await self._goto(self.home)  # once more: replans from where it stopped
+            err2 = await self._goto(home)  # once more: replans from where it stopped
             if err2:
                 return FetchResult(False, f"cannot bring {blob} home: {err2}")
         # 5. put it down, back off
@@ -218,7 +219,7 @@ class CollectAgent(RobotAgent):
         await self._until(lambda: not g.carrying, 2.0)
         here = r.position
         gp = g.describe().geometry.get("pose", [0.23, 0.0, 0.0])
-        drop = Position(float(gp[0]), float(gp[1])).to_global(here) if here is not None else self.home
+        drop = Position(float(gp[0]), float(gp[1])).to_global(here) if here is not None else home
         await self._drive(-0.15, 0.0, 0.5)
         return FetchResult(True, "", drop.x, drop.y)
 

@@ -4,7 +4,9 @@
 merges repeated reports of one blob and hands each blob to one collector: the nearest free one
 (``allocation: direct``), or, in the thesis's "advanced" variant, the one that wins a FIPA
 contract-net call among the collectors (``allocation: contract_net``, :mod:`agents.contractnet`,
-cost = straight-line distance to the blob). When a blob is home it publishes
+cost = straight-line distance to the blob), or, with energy, as a ``fetch`` task of the fleet
+dispatcher (``allocation: dispatch``, :mod:`agents.dispatch`: the collectors bid, the dispatcher
+awards, re-bids and sends collectors to charge). When a blob is home it publishes
 ``Outcome("delivered", subject=<blob id>, ...)``.
 """
 
@@ -16,6 +18,7 @@ import math
 from dataclasses import dataclass, field
 
 from agents.contractnet import Initiator
+from agents.dispatch.tasks import Refusal, TaskRequest, TaskStatus, decode_body
 from agents.registry import agent_class
 from agents.runtime import Agent
 from agents.services import Hello, Message, Outcome, SendPosition, match
@@ -25,6 +28,7 @@ from rsal.msgs import MessageError, get_float, get_str
 
 from .messages import ALLOCATIONS, BLOB, COLLECT, COLLECTED, BlobReport
 from .messages import check_number as _number
+from .messages import check_point as _point
 
 __all__ = ["MasterAgent"]
 
@@ -48,6 +52,9 @@ class _BlobTask:
     failures: list[str] = field(default_factory=list)
     drop: Position | None = None  # where a collector put it down
     reason: str = ""  # why the last fetch failed
+    task: str = ""  # its dispatcher task (allocation: dispatch)
+    heard: bool = False  # the dispatcher said anything of that task
+    to: Position | None = None  # where it goes (allocation: dispatch: one of the depots)
 
 
 @agent_class("MasterAgent")
@@ -59,8 +66,11 @@ class MasterAgent(Agent):
     blob (also one already home) is the same blob; one within ``carry_dist`` m of a collector is a
     blob being carried and is ignored. Each new blob goes to the nearest free collector
     (``allocation: direct``, a ``collect`` message) or to the winner of a contract-net call
-    (``allocation: contract_net``). A failed or timed-out fetch (``task_timeout`` s) is offered again
-    after ``retry_after`` seconds. A blob brought home is published as ``Outcome("delivered")``.
+    (``allocation: contract_net``) or is submitted to the dispatcher ``dispatcher`` (an agent id)
+    as a ``fetch`` task to one of ``depots`` ([[x, y], ...], map frame; the blobs take them in
+    turn; ``allocation: dispatch``), followed on ``task_state``. A failed or timed-out fetch
+    (``task_timeout`` s) is offered again after ``retry_after`` seconds. A blob brought home is
+    published as ``Outcome("delivered")``.
     """
 
     capabilities = ("master",)
@@ -78,6 +88,8 @@ class MasterAgent(Agent):
         task_timeout: float = 600.0,
         bid_deadline: float = 1.0,
         discover_every: float = 2.0,
+        dispatcher: str = "dispatcher",
+        depots: list | None = None,
     ):
         super().__init__(agent_id, period=period, robot=robot)
         if allocation not in ALLOCATIONS:
@@ -89,6 +101,14 @@ class MasterAgent(Agent):
         self.task_timeout = _number(agent_id, "task_timeout", task_timeout, 0.0, 86400.0)
         self.bid_deadline = _number(agent_id, "bid_deadline", bid_deadline, 0.0, 60.0)
         self.discover_every = _number(agent_id, "discover_every", discover_every, 0.0, 600.0)
+        self.dispatcher = str(dispatcher)
+        self.depots = [_point(agent_id, f"depots[{i}]", d) for i, d in enumerate(depots or [])]
+        if allocation == "dispatch" and not self.depots:
+            raise ValueError(
+                f"agent {agent_id}: allocation dispatch needs depots, where blobs go; e.g. depots: [[-3, 2]]"
+            )
+        self.tasks: dict[str, str] = {}  # dispatcher task id -> blob id
+        self._submitted = 0
         self.board = Board()
         self.duplicates = 0  # reports merged into a known blob
         self.ignored = 0  # reports of blobs being carried
@@ -120,6 +140,8 @@ class MasterAgent(Agent):
         self.subscribe(COLLECTED, self.on_collected, filter=match(to=self.id))
         if self.allocation == "contract_net":
             self.cnp = Initiator(self)
+        elif self.allocation == "dispatch":
+            self.subscribe(TaskStatus.SERVICE, self.on_task_state, filter=match(requester=self.id))
 
     async def step(self) -> None:
         loop = asyncio.get_running_loop()
@@ -132,9 +154,13 @@ class MasterAgent(Agent):
         for note in self.blobs("assigned"):
             if mono - note.data.since > self.task_timeout:
                 log.warning("%s: %s: no word from %s; offering it again", self.id, note.data.id, note.data.assignee)
+                if note.data.task:
+                    self.publish(TaskRequest.SERVICE, TaskRequest("cancel", task_id=note.data.task))
                 self._failed(note, "timed out")
         if self.allocation == "direct":
             self._assign_direct(mono)
+        elif self.allocation == "dispatch":
+            self._assign_dispatch(mono)
         elif now >= self._bidding_until:
             self._assign_cnp(mono, loop)
 
@@ -250,6 +276,58 @@ class MasterAgent(Agent):
             self._bidding_until = clock().now() + self.bid_deadline + 0.5
             self._require_host().spawn(self._contract(note), f"{self.id}: contract for {note.data.id}")
             return  # one call in its bidding phase at a time
+
+    def _assign_dispatch(self, now: float) -> None:
+        """Every new blob as a ``fetch`` task to the dispatcher (one task per attempt); a task the
+        dispatcher has not acknowledged within ``bid_deadline`` + 2 s is sent again (it may have
+        started after the request: the dispatcher refuses a second copy of a task it knows)."""
+        for note in self.blobs("assigned"):
+            d = note.data
+            if d.task and not d.heard and now - d.since > self.bid_deadline + 2.0:
+                d.since = now
+                self._submit(note)
+        for note in self.blobs("new"):
+            d = note.data
+            if d.retry_at > now:
+                continue
+            if d.to is None:
+                d.to = self.depots[self._submitted % len(self.depots)]
+                self._submitted += 1
+            self._assign(note, "", now)
+            d.task, d.heard = f"{self.id}-{d.id}-{d.attempts}", False
+            self.tasks[d.task] = d.id
+            self._submit(note)
+            log.info(
+                "%s: %s at (%.2f, %.2f) -> the dispatcher as %s", self.id, d.id, *note.position.as_tuple()[:2], d.task
+            )
+
+    def _submit(self, note: BoardObject) -> None:
+        d = note.data
+        args = {"object": d.id, "at": [note.position.x, note.position.y], "to": [d.to.x, d.to.y]}
+        self.publish(TaskRequest.SERVICE, TaskRequest("submit", task={"id": d.task, "kind": "fetch", "args": args}))
+
+    def on_task_state(self, msg: Message) -> None:
+        """The dispatcher's word on a fetch: on a robot (its assignee), done (delivered to its
+        depot) or failed / cancelled / refused (offered again after ``retry_after``)."""
+        if msg.sender != self.dispatcher:
+            return
+        try:
+            st = decode_body(TaskStatus.SERVICE, msg.body)
+        except Exception as e:
+            log.warning("%s: dropped a bad task_state message from %s: %s", self.id, msg.sender, e)
+            return
+        note = self.board.get(("blob", self.tasks.get(st.task_id, "")))
+        if note is None or note.topic != "blob/assigned" or note.data.task != st.task_id:
+            return
+        note.data.heard = True
+        if st.state == "refused" and st.reason == Refusal.DUPLICATE_ID:  # a copy sent again: it has it
+            return
+        if st.robot:
+            note.data.assignee = st.robot
+        if st.state == "done":
+            self._delivered(note, st.robot or "?", note.data.to or note.position)
+        elif st.state in ("failed", "cancelled", "refused"):
+            self._failed(note, st.text or st.reason or st.state)
 
     async def _contract(self, note: BoardObject) -> None:
         d = note.data

@@ -27,7 +27,7 @@ __all__ = ["ALLOCATIONS", "BLOB", "COLLECT", "COLLECTED", "BlobReport", "check_n
 BLOB = "blob"
 COLLECT = "collect"
 COLLECTED = "collected"
-ALLOCATIONS = ("direct", "contract_net")
+ALLOCATIONS = ("direct", "contract_net", "dispatch")
 
 
 def check_number(agent_id: str, name: str, value, lo: float = 0.0, hi: float = math.inf) -> float:
