@@ -172,14 +172,14 @@ class GroundTruth:
     @property
     def samples(self) -> bool:
         """Whether the run samples the truth: poses (``end.travel``, ``end.clearance``) or batteries (energy)."""
-        return self.poses or self.energy
+        return self.poses or self.judges_energy
 
     @property
     def poses(self) -> bool:
         return self.end.travel is not None or self.end.clearance is not None
 
     @property
-    def energy(self) -> bool:
+    def judges_energy(self) -> bool:
         return self.end.never_flat or self.end.charged > 0
 
     def _world(self, robot: str):
@@ -337,7 +337,7 @@ class GroundTruth:
     def sample(self) -> None:
         """One true pose per robot: distance travelled and the nearest wall so far; the batteries'
         record when the end judges energy."""
-        if self.energy:
+        if self.judges_energy:
             record = self.sim.batteries()
             self.batteries = {r: record[r] for r in self.robots if r in record and record[r].get("battery")}
         if not self.poses:
