@@ -36,7 +36,10 @@ import numpy as np
 
 from agents.registry import agent_class
 from agents.services import Outcome, SendPosition
-from rsal.behaviours import BehaviourParams
+from rsal.behaviours import SECTOR_COUNT, BehaviourParams, ListSectors
+
+_SECTOR = 360.0 / SECTOR_COUNT
+_HALF_SECTOR = _SECTOR / 2
 from rsal.robot import Pioneer
 
 from .agents import SwarmAgent
@@ -64,9 +67,47 @@ def _nav_node(hub):
 
 class ThesisPioneer(SwarmPioneer):
     """A :class:`SwarmPioneer` whose dispersal layer reads the robot's heading from its localize
-    device (the map frame its neighbours' broadcasts are in), not from its odometry."""
+    device (the map frame its neighbours' broadcasts are in), not from its odometry, and whose
+    sectors also hold its neighbours' bodies where their broadcasts put them (:meth:`sectors`)."""
 
     localize = None  # the Position2d proxy of <robot>:position2d:2, set by the agent
+    #: ``neighbours(x, y, r)``: (k, 2) broadcast positions (map frame) of the other robots within
+    #: r m of (x, y), set by the agent; None: sonar only
+    neighbours = None
+    neighbour_range = 2.5  # m: neighbours nearer than this are fused into the sectors
+    neighbour_radius = 0.33  # m: a neighbour's body around its broadcast position (set from the size)
+
+    def sectors(self):
+        """The sonar ring's sectors with the neighbours' bodies fused in by minimum: each robot
+        within :attr:`neighbour_range` of the localize pose, seen as a disc of
+        :attr:`neighbour_radius` round its broadcast position, fills the sectors it spans with its
+        nearest distance. The ring's 16 cones leave 25 deg gaps at the sides where a robot alongside
+        goes unseen; the broadcasts close them (what a real swarm's shared positions are for)."""
+        s = super().sectors()
+        m = self.localize.latest if self.localize is not None else None
+        if self.neighbours is None or m is None:
+            return s
+        x, y, yaw = m.pose
+        near = self.neighbours(x, y, self.neighbour_range)
+        if not len(near):
+            return s
+        d = list(s.dist)
+        r = self.neighbour_radius
+        for nx, ny in near.tolist():
+            dx, dy = nx - x, ny - y
+            dist = math.hypot(dx, dy)
+            if dist < 1e-6:
+                continue
+            surface = max(0.0, dist - r)
+            bearing = math.degrees(math.atan2(dy, dx) - yaw)
+            half = math.degrees(math.asin(r / dist)) if dist > r else 180.0
+            i0 = math.floor((bearing - half + _HALF_SECTOR) / _SECTOR)
+            i1 = math.floor((bearing + half + _HALF_SECTOR) / _SECTOR)
+            for i in range(i0, min(i1, i0 + SECTOR_COUNT - 1) + 1):
+                j = i % SECTOR_COUNT
+                if surface < d[j]:
+                    d[j] = surface
+        return ListSectors(d)
 
     def update(self) -> None:
         m = self.localize.latest if self.localize is not None else None
@@ -77,11 +118,23 @@ class ThesisPioneer(SwarmPioneer):
         Pioneer.update(self)
 
 
-def params_for_size(length: float, width: float, base: BehaviourParams | None = None) -> BehaviourParams:
+def params_for_size(
+    length: float,
+    width: float,
+    base: BehaviourParams | None = None,
+    *,
+    lane_margin: float = 0.1,
+    sweep_margin: float = 0.05,
+) -> BehaviourParams:
     """The behaviour's distances (``radius``, ``stop_dist``, ``avoid_dist``, ``wall_dist``) scaled
     from the Pioneer 2DX's (44 x 38 cm, the defaults of :class:`rsal.behaviours.BehaviourParams`) to
     a base of ``length`` x ``width`` m: a Pioneer 3-AT (62.6 x 50.5 cm) keeps 1.4 times the
-    distance, so its longer body stops before it touches what the 2DX's distances let it reach."""
+    distance, so its longer body stops before it touches what the 2DX's distances let it reach.
+
+    The body-aware checks of :class:`rsal.behaviours.BehaviourParams` are on: the front is the
+    lane of the body's half-width plus ``lane_margin`` m (a neighbour at 40 deg is in the way of
+    the 3-AT's front corners, outside the plain +-30 deg cone), escape backs up only into a clear
+    lane, and nothing turns in place within the body's half-diagonal plus ``sweep_margin`` m."""
     base = base or BehaviourParams()
     k = max(1.0, max(length, width) / 2.0 / 0.22)
     return dataclasses.replace(
@@ -90,6 +143,8 @@ def params_for_size(length: float, width: float, base: BehaviourParams | None = 
         stop_dist=base.stop_dist * k,
         avoid_dist=base.avoid_dist * k,
         wall_dist=base.wall_dist * k,
+        corridor=width / 2.0 + lane_margin,
+        sweep=math.hypot(length / 2.0, width / 2.0) + sweep_margin,
     )
 
 
@@ -128,7 +183,12 @@ class ThesisSwarmAgent(SwarmAgent):
         robot = super()._build_shared(hub)
         robot.localize = self.localize
         size = robot.position2d.describe(timeout=5.0).geometry.get("size") or [0.44, 0.38]
-        robot.behaviour.p = params_for_size(float(size[0]), float(size[1]), robot.behaviour.p)
+        length, width = float(size[0]), float(size[1])
+        robot.behaviour.p = params_for_size(length, width, robot.behaviour.p)
+        # the crowd is of one model: a neighbour's body is about this robot's, between its
+        # inscribed and circumscribed radius
+        robot.neighbour_radius = (width / 2.0 + math.hypot(length / 2.0, width / 2.0)) / 2.0
+        robot.neighbours = lambda x, y, r: hub.near(x, y, r, exclude=name)
         self.frame = "map"  # what it broadcasts and steers by
         return robot
 
