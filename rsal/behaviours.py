@@ -62,8 +62,8 @@ class BehaviourParams:
     # Body-aware checks (0: off, the thesis's plain cones). ``corridor`` > 0: the front distance is
     # the nearest obstacle ahead within that half-width of the robot's lane (the body's corners
     # included), not within +-30 deg; and escape backs up only while the lane behind is clear.
-    # ``sweep`` > 0: the radius the body sweeps turning in place; nothing turns in place (the robot
-    # waits) while an obstacle is nearer than that.
+    # ``sweep`` > 0: the radius the body's corners sweep when it turns; no turn swings a corner
+    # towards an obstacle nearer than that (the robot drives straight, or waits).
     corridor: float = 0.0
     sweep: float = 0.0
 
@@ -199,9 +199,19 @@ class Subsumption:
                 raise ValueError(f"side {side!r} must be 'left' or 'right'")
             self.p.side = side
 
-    def _may_turn(self, s: Sectors) -> bool:
-        """Whether turning in place is safe: nothing within ``sweep`` (always, when it is 0)."""
-        return self.p.sweep <= 0 or min(s.dist) >= self.p.sweep
+    def guard_turn(self, s: Sectors, v: float, w: float) -> tuple[float, float]:
+        """``(v, w)`` without its turn when the turn would swing a corner of the body into
+        something (``sweep`` > 0): turning left the front-left corner sweeps the front-left
+        quarter and the rear-right corner the rear-right one; turning right the other two. While
+        one of those holds an obstacle within ``sweep`` the robot drives straight (or waits)."""
+        r = self.p.sweep
+        if r <= 0 or w == 0.0:
+            return (v, w)
+        if w > 0:
+            near = min(s.min_between(0, 90), s.min_between(-180, -90))
+        else:
+            near = min(s.min_between(-90, 0), s.min_between(90, 180))
+        return (v, w) if near >= r else (v, 0.0)
 
     def _escape(self, s: Sectors) -> tuple[float, float]:
         """The escape layer's output: back up turning towards the more open side; with
@@ -211,9 +221,7 @@ class Subsumption:
         v, w = p.escape_speed, p.turn_rate * self._escape_turn
         if p.corridor > 0 and lane_distance(s, p.corridor, behind=True) < p.stop_dist:
             v = 0.0
-        if v == 0.0 and not self._may_turn(s):
-            w = 0.0
-        return (v, w)
+        return self.guard_turn(s, v, w)
 
     def step(self, s: Sectors, now: float, stalled: bool = False) -> tuple[float, float]:
         p = self.p
@@ -251,9 +259,7 @@ class Subsumption:
                 if front < p.stop_dist
                 else p.cruise_speed * (front - p.stop_dist) / (p.avoid_dist - p.stop_dist) * 0.5
             )
-            if v == 0.0 and not self._may_turn(s):
-                return (0.0, 0.0)  # boxed in: wait (escape takes over after stuck_time)
-            return (v, p.turn_rate * turn)
+            return self.guard_turn(s, v, p.turn_rate * turn)  # boxed in: waits, escape after stuck_time
 
         # 3. wall-follow
         if self.wallfollow:
@@ -271,7 +277,7 @@ class Subsumption:
             # diag_d < side_d: heading into the wall; diag_d > side_d: heading away (or a corner).
             w = sign * float(np.clip(1.5 * err + 4.0 * (diag_d - side_d), -p.turn_rate, p.turn_rate))
             v = p.cruise_speed * (0.6 if abs(err) > 0.3 else 1.0)
-            return (v, w)
+            return self.guard_turn(s, v, w)
 
         # 4. command
         self.state = "command" if moving_intent or self.command[1] else "idle"

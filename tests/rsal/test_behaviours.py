@@ -382,5 +382,27 @@ def test_escape_backs_up_only_into_a_clear_lane_and_turns_only_with_room():
     v, w = escaping(fuse([polar((0.46, 180))]))  # a robot behind, outside the sweep
     assert v == 0.0 and w != 0.0  # turns in place, does not back into it
     assert escaping(fuse([polar((0.4, 180))])) == (0.0, 0.0)  # behind and within the sweep: waits
-    v, w = escaping(fuse([polar((0.4, 90))]))  # beside within the sweep, the lane behind clear
-    assert v == p.escape_speed and w != 0.0  # backs up (turning while it moves)
+    # beside within the sweep, the lane behind clear: backs up, straight (turning right, away from
+    # it, would swing the rear-left corner into it)
+    assert escaping(fuse([polar((0.4, 90))])) == (p.escape_speed, 0.0)
+    v, w = escaping(fuse([polar((0.42, -60))]))  # front-right: turns left, the front corner swinging away
+    assert v == p.escape_speed and w > 0
+
+
+def test_a_turn_never_swings_a_corner_towards_something_within_the_sweep():
+    b = Subsumption(BehaviourParams(**BODY))
+    rear_left = fuse([polar((0.42, 135))])
+    assert b.guard_turn(rear_left, 0.3, -0.5) == (0.3, 0.0)  # turning right: the rear-left swings in
+    assert b.guard_turn(rear_left, 0.3, 0.5) == (0.3, 0.5)  # turning left: it swings away
+    front_left = fuse([polar((0.42, 45))])
+    assert b.guard_turn(front_left, 0.0, 0.5) == (0.0, 0.0)
+    assert b.guard_turn(front_left, 0.0, -0.5) == (0.0, -0.5)
+    assert b.guard_turn(fuse([polar((0.5, 45))]), 0.0, 0.5) == (0.0, 0.5)  # outside the sweep
+    assert Subsumption().guard_turn(front_left, 0.0, 0.5) == (0.0, 0.5)  # sweep 0: off
+    # wall-following a robot alongside on the left at 0.42 m: the controller turns right, away from
+    # it, which would swing the rear-left corner into it: it drives straight on instead
+    b.set_wallfollow(True, "left")
+    alongside = fuse([arc(0.42, 80, 100), polar((0.55, 135))])
+    v, w = b.step(alongside, 0.0)
+    assert v > 0 and w == 0.0
+    assert b.state == "wallfollow"

@@ -52,7 +52,7 @@ class Disperse(Subsumption):
             return p.cruise_speed, 0.0
         err = normalize_angle(self.heading - self.yaw)
         w = max(-p.turn_rate, min(p.turn_rate, 1.5 * err))
-        return p.cruise_speed * (1.0 if abs(err) < 0.8 else 0.4), w
+        return self.guard_turn(s, p.cruise_speed * (1.0 if abs(err) < 0.8 else 0.4), w)
 
 
 class SwarmPioneer(Pioneer):
