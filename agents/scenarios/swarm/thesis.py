@@ -37,14 +37,17 @@ import numpy as np
 from agents.registry import agent_class
 from agents.services import Outcome, SendPosition
 from rsal.behaviours import SECTOR_COUNT, BehaviourParams, ListSectors
-
-_SECTOR = 360.0 / SECTOR_COUNT
-_HALF_SECTOR = _SECTOR / 2
+from rsal.clock import clock
+from rsal.data import normalize_angle
+from rsal.geometry import compose, relative
 from rsal.robot import Pioneer
 
 from .agents import SwarmAgent
 from .behaviour import SwarmPioneer
 from .monitor import SwarmMonitor
+
+_SECTOR = 360.0 / SECTOR_COUNT
+_HALF_SECTOR = _SECTOR / 2
 
 __all__ = ["ThesisPioneer", "ThesisSwarmAgent", "ThesisSwarmMonitor", "params_for_size"]
 
@@ -76,6 +79,9 @@ class ThesisPioneer(SwarmPioneer):
     neighbours = None
     neighbour_range = 2.5  # m: neighbours nearer than this are fused into the sectors
     neighbour_radius = 0.33  # m: a neighbour's body around its broadcast position (set from the size)
+    reseeds = 0  # how often guard() re-seeded the localize device
+    _guard_ref = None  # (localize pose, odometry pose, time) of the last check
+    _guard_hold = 0.0
 
     def sectors(self):
         """The sonar ring's sectors with the neighbours' bodies fused in by minimum: each robot
@@ -109,13 +115,57 @@ class ThesisPioneer(SwarmPioneer):
                     d[j] = surface
         return ListSectors(d)
 
+    #: a localize pose farther than this (m) from where the odometry carried the last one within
+    #: ``check_every`` s is a jump of the filter, not a correction: it is re-seeded (:meth:`guard`)
+    jump_limit = 0.3
+    jump_yaw = 0.35  # rad, the same for the heading
+    check_every = 1.0  # s
+    reseed_cov = (0.01, 0.0, 0.0, 0.0, 0.01, 0.0, 0.0, 0.0, 0.005)  # m^2, rad^2: 0.1 m and 4 deg
+
     def update(self) -> None:
         m = self.localize.latest if self.localize is not None else None
         if m is None:
             super().update()
             return
+        self.guard(m.pose)
         self.behaviour.yaw = m.pose[2]
         Pioneer.update(self)
+
+    def guard(self, est) -> None:
+        """Re-seed the localize device when its pose jumps away from where the robot's own
+        odometry carried it. AMCL on a 16-sonar ring in a crowd sees mostly other robots, which
+        are not on its map; now and then the filter settles on a wrong fit and its pose leaps by
+        metres in a second, which no wheel turned for. The robot cannot see the truth, but it can
+        compare: every ``check_every`` s the pose becomes the reference, and a pose farther than
+        ``jump_limit`` m (or ``jump_yaw`` rad) from the reference moved on by the odometry since is
+        answered with ``set_pose`` at the odometry's pose (``reseed_cov``). Corrections smaller than
+        that (the filter's work near walls) pass."""
+        odo = self.position2d.latest
+        if odo is None or self.localize is None:
+            return
+        now = clock().now()
+        if self._guard_ref is None:
+            self._guard_ref = (tuple(est), odo.pose, now)
+            return
+        if now < self._guard_hold:
+            return
+        ref_est, ref_odo, t = self._guard_ref
+        pred = compose(ref_est, relative(ref_odo, odo.pose))
+        if (
+            math.hypot(est[0] - pred[0], est[1] - pred[1]) > self.jump_limit
+            or abs(normalize_angle(est[2] - pred[2])) > self.jump_yaw
+        ):
+            self.reseeds += 1
+            log.info(
+                "%s: localize pose jumped %.2f m from the odometry's; re-seeded",
+                self.name,
+                math.hypot(est[0] - pred[0], est[1] - pred[1]),
+            )
+            self.localize.rpc_async("set_pose", pose=[float(v) for v in pred], cov=list(self.reseed_cov))
+            self._guard_ref = (tuple(pred), odo.pose, now)
+            self._guard_hold = now + 0.5  # until the driver has published the new pose
+        elif now - t >= self.check_every:
+            self._guard_ref = (tuple(est), odo.pose, now)
 
 
 def params_for_size(
