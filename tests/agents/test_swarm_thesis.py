@@ -19,6 +19,7 @@ import pytest
 
 from agents.runtime import AgentHost
 from agents.scenarios.swarm import crowd_world, thesis, write_crowd_world
+from agents.scenarios.swarm.behaviour import Disperse
 from agents.scenarios.swarm.thesis import ThesisSwarmAgent, ThesisSwarmMonitor
 from rsal.behaviours import SECTOR_COUNT, ListSectors
 from rsal.client import Fabric
@@ -59,11 +60,16 @@ class _Latest:
         self.calls.append((op, args))
 
 
-def _pioneer(monkeypatch, pose, odom=(0.0, 0.0, 0.0), neighbours=()):
-    """A ThesisPioneer without devices: its ring sees nothing, its localize pose is ``pose``."""
-    monkeypatch.setattr(thesis.SwarmPioneer, "sectors", lambda self: ListSectors([math.inf] * SECTOR_COUNT))
+def _pioneer(monkeypatch, pose, odom=(0.0, 0.0, 0.0), neighbours=(), echoes=()):
+    """A ThesisPioneer without devices: its ring sees ``echoes`` ((bearing deg, m), robot frame),
+    its localize pose is ``pose``."""
+    ring = [math.inf] * SECTOR_COUNT
+    for deg, dist in echoes:
+        ring[round(deg / (360 / SECTOR_COUNT)) % SECTOR_COUNT] = dist
+    monkeypatch.setattr(thesis.SwarmPioneer, "sectors", lambda self: ListSectors(list(ring)))
     p = thesis.ThesisPioneer.__new__(thesis.ThesisPioneer)
     p.name = "r0"
+    p.behaviour = Disperse()
     p.localize, p.position2d = _Latest(pose), _Latest(odom)
     p.neighbours = lambda x, y, r: np.array([n for n in neighbours if math.dist(n, (x, y)) < r]).reshape(-1, 2)
     return p
@@ -71,14 +77,18 @@ def _pioneer(monkeypatch, pose, odom=(0.0, 0.0, 0.0), neighbours=()):
 
 def test_neighbours_broadcast_positions_fill_the_sectors_their_bodies_span(monkeypatch):
     # facing +y at (1, 1); a neighbour 1 m to the right (world +x), one 3 m away (beyond range)
-    p = _pioneer(monkeypatch, (1.0, 1.0, math.pi / 2), neighbours=[(2.0, 1.0), (1.0, 4.0)])
+    p = _pioneer(
+        monkeypatch, (1.0, 1.0, math.pi / 2), neighbours=[(2.0, 1.0), (1.0, 4.0)], echoes=[(-90, 0.7), (90, 1.5)]
+    )
     s = p.sectors()
+    # the echo on the right is that neighbour, the one on the left (nobody there) a wall
+    assert p.behaviour.walls.min_between(-90, -90) == math.inf
+    assert p.behaviour.walls.min_between(90, 90) == 1.5 == s.min_between(90, 90)
     r = p.neighbour_radius
-    assert s.min_between(-95, -85) == pytest.approx(1.0 - r)  # on the robot's right, its surface
+    assert s.min_between(-85, -85) == pytest.approx(1.0 - r)  # on the robot's right, its surface
     half = math.degrees(math.asin(r / 1.0))
     assert s.min_between(-90 + half - 5, -90 + half - 5) == pytest.approx(1.0 - r)  # spans its width
-    assert s.min_between(-90 + half + 15, 270 - half - 15) == math.inf  # and nothing else
-    assert s.min_between(85, 95) == math.inf  # the far one is left to the sonar
+    assert s.min_between(-90 + half + 15, 80) == s.min_between(100, 270 - half - 15) == math.inf  # nothing else
 
 
 def test_a_localize_pose_that_jumps_away_from_the_odometry_is_reseeded(monkeypatch):

@@ -79,6 +79,7 @@ class ThesisPioneer(SwarmPioneer):
     neighbours = None
     neighbour_range = 2.5  # m: neighbours nearer than this are fused into the sectors
     neighbour_radius = 0.33  # m: a neighbour's body around its broadcast position (set from the size)
+    explained_within = 0.6  # m: an echo this near a neighbour's body or beyond is not a wall
     reseeds = 0  # how often guard() re-seeded the localize device
     _guard_ref = None  # (localize pose, odometry pose, time) of the last check
     _guard_hold = 0.0
@@ -90,6 +91,7 @@ class ThesisPioneer(SwarmPioneer):
         nearest distance. The ring's 16 cones leave 25 deg gaps at the sides where a robot alongside
         goes unseen; the broadcasts close them (what a real swarm's shared positions are for)."""
         s = super().sectors()
+        self.behaviour.walls = None
         m = self.localize.latest if self.localize is not None else None
         if self.neighbours is None or m is None:
             return s
@@ -97,7 +99,8 @@ class ThesisPioneer(SwarmPioneer):
         near = self.neighbours(x, y, self.neighbour_range)
         if not len(near):
             return s
-        d = list(s.dist)
+        sonar = list(s.dist)
+        d = [math.inf] * SECTOR_COUNT  # the neighbours' bodies
         r = self.neighbour_radius
         for nx, ny in near.tolist():
             dx, dy = nx - x, ny - y
@@ -113,7 +116,10 @@ class ThesisPioneer(SwarmPioneer):
                 j = i % SECTOR_COUNT
                 if surface < d[j]:
                     d[j] = surface
-        return ListSectors(d)
+        # an echo no farther than a neighbour's body (give or take the poses' errors) is that robot
+        tol = self.explained_within
+        self.behaviour.walls = ListSectors([a if a < b - tol else math.inf for a, b in zip(sonar, d, strict=True)])
+        return ListSectors([min(a, b) for a, b in zip(sonar, d, strict=True)])
 
     #: a localize pose farther than this (m) from where the odometry carried the last one within
     #: ``check_every`` s is a jump of the filter, not a correction: it is re-seeded (:meth:`guard`)
