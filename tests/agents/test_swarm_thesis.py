@@ -175,6 +175,12 @@ def test_ten_pioneer_3ats_with_full_stacks_swarm_and_are_judged_on_ground_truth(
     assert mon.contact_counts()[0] <= sum(c[0] for c in contacts["robots"].values())
     assert mon.contact_counts()[1] <= contacts["robot_wall"]
     assert f"{mon.contact_counts()[0]} robot-robot" in v.text
+    # The verdict's first half: no robot touched a robot or a wall during the judged run (counted
+    # by the simulator in every physics step).
+    assert mon.contact_counts() == (0, 0), f"contacts during the run: {v.text}"
+    # Its second half, 95 % of robot-time within 0.5 m, is not met yet: AMCL on a sonar ring that
+    # sees only other robots follows its odometry's drift until the robot reaches a wall; measured
+    # 89-94 % over 30 s (docs/scenarios/swarm.md). Asserted here: most robot-time is localized.
     assert mon.samples >= DURATION / mon.sample_every * 0.8
     assert not np.isnan(errors[:N]).any(), "the monitor judges from the first sample with every estimate"
     assert np.median(errors[np.isfinite(errors)]) < 0.3, f"median localization error {np.nanmedian(errors):.2f} m"
