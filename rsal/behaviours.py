@@ -15,6 +15,12 @@ higher layer that triggers overrides the motor output of every layer below it:
    and round outer corners to find the wall again.
 4. **command** (lowest): the user's ``set_command(v, w)``.
 
+Two body-aware checks are off by default (0) and on where a scenario asks (the thesis swarm's
+Pioneer 3-AT): with ``corridor`` > 0 the front is the nearest obstacle in the lane the body sweeps
+driving straight (:func:`lane_distance`), not within +-30 deg, and escape backs up only into a clear
+lane; with ``sweep`` > 0 no layer's turn swings a corner of the body towards an obstacle within
+that radius (:meth:`Subsumption.guard_turn`).
+
 :class:`Subsumption` is a pure state machine (ranges and time in, ``(v, w)`` and the active
 layer out) so it is unit-tested without a network; :class:`rsal.robot.Pioneer` feeds it. For rangers
 of few beams (a sonar ring) :func:`fuse_beams` and :class:`ListSectors` do the same fusion in plain

@@ -13,6 +13,13 @@ robot context also holds its localize and planner devices: it broadcasts the AMC
 odometry, and steers its dispersal by it (:class:`ThesisPioneer`). Its odometry is left as it is:
 setting it would look to AMCL like a jump of the robot.
 
+Its robot, :class:`ThesisPioneer`, keeps the crowd from touching and its estimate from leaping:
+the behaviour's body-aware checks (:func:`params_for_size`: the lane ahead and behind, no turn that
+swings a corner into something), the neighbours' broadcast positions filled into its sectors where
+the sonar ring's side gaps would miss them (echoes they explain are not walls to follow), and a
+guard that re-seeds the localize device when its pose jumps away from where the robot's own
+odometry carried it (:meth:`ThesisPioneer.guard`).
+
 :class:`ThesisSwarmMonitor` is the :class:`~agents.scenarios.swarm.monitor.SwarmMonitor` with the
 two ground-truth checks the full stack needs: every contact of a robot with a wall or another robot,
 counted by the simulator in every physics step (``sim:simulation:0`` ``rpc/contacts``), and each
