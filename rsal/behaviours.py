@@ -15,6 +15,12 @@ higher layer that triggers overrides the motor output of every layer below it:
    and round outer corners to find the wall again.
 4. **command** (lowest): the user's ``set_command(v, w)``.
 
+Two body-aware checks are off by default (0) and on where a scenario asks (the thesis swarm's
+Pioneer 3-AT): with ``corridor`` > 0 the front is the nearest obstacle in the lane the body sweeps
+driving straight (:func:`lane_distance`), not within +-30 deg, and escape backs up only into a clear
+lane; with ``sweep`` > 0 no layer's turn swings a corner of the body towards an obstacle within
+that radius (:meth:`Subsumption.guard_turn`).
+
 :class:`Subsumption` is a pure state machine (ranges and time in, ``(v, w)`` and the active
 layer out) so it is unit-tested without a network; :class:`rsal.robot.Pioneer` feeds it. For rangers
 of few beams (a sonar ring) :func:`fuse_beams` and :class:`ListSectors` do the same fusion in plain
@@ -29,7 +35,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["BehaviourParams", "ListSectors", "Sectors", "Subsumption", "beam_points", "fuse", "fuse_beams"]
+__all__ = [
+    "BehaviourParams",
+    "ListSectors",
+    "Sectors",
+    "Subsumption",
+    "beam_points",
+    "fuse",
+    "fuse_beams",
+    "lane_distance",
+]
 
 SECTOR_COUNT = 36  # 10 degrees each, sector 0 centred straight ahead, counter-clockwise
 _SECTOR = 360.0 / SECTOR_COUNT
@@ -50,6 +65,13 @@ class BehaviourParams:
     escape_time: float = 1.5
     escape_speed: float = -0.15
     side: str = "left"  # wall to follow
+    # Body-aware checks (0: off, the thesis's plain cones). ``corridor`` > 0: the front distance is
+    # the nearest obstacle ahead within that half-width of the robot's lane (the body's corners
+    # included), not within +-30 deg; and escape backs up only while the lane behind is clear.
+    # ``sweep`` > 0: the radius the body's corners sweep when it turns; no turn swings a corner
+    # towards an obstacle nearer than that (the robot drives straight, or waits).
+    corridor: float = 0.0
+    sweep: float = 0.0
 
 
 class Sectors:
@@ -69,6 +91,33 @@ class Sectors:
         i1 = int(math.floor((a1_deg + width / 2) / width))
         idx = np.arange(i0, i1 + 1) % SECTOR_COUNT
         return float(self.dist[idx].min())
+
+
+# (sector index, cos, sin) of the sector centres within +-40 deg ahead and behind: farther round,
+# a point within a lane's half-width lies beside the body, not in its way
+_LANE_DEG = 40.0
+_AHEAD = [
+    (i % SECTOR_COUNT, math.cos(math.radians(i * _SECTOR)), math.sin(math.radians(i * _SECTOR)))
+    for i in range(-int(_LANE_DEG // _SECTOR), int(_LANE_DEG // _SECTOR) + 1)
+]
+_BEHIND = [((i + SECTOR_COUNT // 2) % SECTOR_COUNT, c, sn) for i, c, sn in _AHEAD]
+
+
+def lane_distance(s: Sectors, half_width: float, behind: bool = False) -> float:
+    """How far (m, from the robot centre along its heading; ``behind``: backwards) the nearest
+    obstacle lies in the lane of ``half_width`` m that driving straight sweeps: each sector's
+    nearest point within 40 deg of the heading, taken at the sector's centre direction, counts
+    when it lies within ``half_width`` of the robot's axis (the sectors cover the lane from just
+    beyond the body's front corners). Infinite when the lane is clear."""
+    best = math.inf
+    dist = s.dist
+    for i, c, sn in _BEHIND if behind else _AHEAD:
+        d = dist[i]
+        if d < best and c > 0.0 and abs(d * sn) < half_width:
+            x = d * c
+            if x < best:
+                best = x
+    return float(best)
 
 
 def fuse(points_xy: list[np.ndarray], far: float = math.inf) -> Sectors:
@@ -156,9 +205,33 @@ class Subsumption:
                 raise ValueError(f"side {side!r} must be 'left' or 'right'")
             self.p.side = side
 
+    def guard_turn(self, s: Sectors, v: float, w: float) -> tuple[float, float]:
+        """``(v, w)`` without its turn when the turn would swing a corner of the body into
+        something (``sweep`` > 0): turning left the front-left corner sweeps the front-left
+        quarter and the rear-right corner the rear-right one; turning right the other two. While
+        one of those holds an obstacle within ``sweep`` the robot drives straight (or waits)."""
+        r = self.p.sweep
+        if r <= 0 or w == 0.0:
+            return (v, w)
+        if w > 0:
+            near = min(s.min_between(0, 90), s.min_between(-180, -90))
+        else:
+            near = min(s.min_between(-90, 0), s.min_between(90, 180))
+        return (v, w) if near >= r else (v, 0.0)
+
+    def _escape(self, s: Sectors) -> tuple[float, float]:
+        """The escape layer's output: back up turning towards the more open side; with
+        ``corridor`` > 0 only while the lane behind is clear (else turn in place), and with
+        ``sweep`` > 0 no turn in place while something is that near (then it waits)."""
+        p = self.p
+        v, w = p.escape_speed, p.turn_rate * self._escape_turn
+        if p.corridor > 0 and lane_distance(s, p.corridor, behind=True) < p.stop_dist:
+            v = 0.0
+        return self.guard_turn(s, v, w)
+
     def step(self, s: Sectors, now: float, stalled: bool = False) -> tuple[float, float]:
         p = self.p
-        front = s.min_between(-30, 30)
+        front = lane_distance(s, p.corridor) if p.corridor > 0 else s.min_between(-30, 30)
         left = s.min_between(30, 100)
         right = s.min_between(-100, -30)
         moving_intent = self.wallfollow or abs(self.command[0]) > 1e-3
@@ -166,7 +239,7 @@ class Subsumption:
         # 1. escape
         if now < self._escape_until:
             self.state = "escape"
-            return (p.escape_speed, p.turn_rate * self._escape_turn)
+            return self._escape(s)
         blocked = moving_intent and (stalled or front < p.stop_dist)
         if blocked:
             if self._blocked_since is None:
@@ -177,7 +250,7 @@ class Subsumption:
                 self._escape_turn = 1.0 if left > right else -1.0
                 self.escapes += 1
                 self.state = "escape"
-                return (p.escape_speed, p.turn_rate * self._escape_turn)
+                return self._escape(s)
         else:
             self._blocked_since = None
 
@@ -192,7 +265,7 @@ class Subsumption:
                 if front < p.stop_dist
                 else p.cruise_speed * (front - p.stop_dist) / (p.avoid_dist - p.stop_dist) * 0.5
             )
-            return (v, p.turn_rate * turn)
+            return self.guard_turn(s, v, p.turn_rate * turn)  # boxed in: waits, escape after stuck_time
 
         # 3. wall-follow
         if self.wallfollow:
@@ -210,7 +283,7 @@ class Subsumption:
             # diag_d < side_d: heading into the wall; diag_d > side_d: heading away (or a corner).
             w = sign * float(np.clip(1.5 * err + 4.0 * (diag_d - side_d), -p.turn_rate, p.turn_rate))
             v = p.cruise_speed * (0.6 if abs(err) > 0.3 else 1.0)
-            return (v, w)
+            return self.guard_turn(s, v, w)
 
         # 4. command
         self.state = "command" if moving_intent or self.command[1] else "idle"

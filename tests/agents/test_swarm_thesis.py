@@ -18,8 +18,10 @@ import numpy as np
 import pytest
 
 from agents.runtime import AgentHost
-from agents.scenarios.swarm import crowd_world, write_crowd_world
+from agents.scenarios.swarm import crowd_world, thesis, write_crowd_world
+from agents.scenarios.swarm.behaviour import Disperse
 from agents.scenarios.swarm.thesis import ThesisSwarmAgent, ThesisSwarmMonitor
+from rsal.behaviours import SECTOR_COUNT, ListSectors
 from rsal.client import Fabric
 from rsal.transport import TransportArgs
 from tests.conftest import MAPS, free_port, rsal_cmd, wait_until
@@ -47,6 +49,67 @@ def test_monitor_judges_contacts_and_localization_share():
     assert "localization within 0.5 m for 50.0 %" in m.judge(1.0).text
     with pytest.raises(ValueError, match="loc_share"):
         ThesisSwarmMonitor("m", robots=2, loc_share=1.5)
+
+
+class _Latest:
+    def __init__(self, pose):
+        self.latest = type("M", (), {"pose": tuple(pose)})()
+        self.calls = []
+
+    def rpc_async(self, op, **args):
+        self.calls.append((op, args))
+
+
+def _pioneer(monkeypatch, pose, odom=(0.0, 0.0, 0.0), neighbours=(), echoes=()):
+    """A ThesisPioneer without devices: its ring sees ``echoes`` ((bearing deg, m), robot frame),
+    its localize pose is ``pose``."""
+    ring = [math.inf] * SECTOR_COUNT
+    for deg, dist in echoes:
+        ring[round(deg / (360 / SECTOR_COUNT)) % SECTOR_COUNT] = dist
+    monkeypatch.setattr(thesis.SwarmPioneer, "sectors", lambda self: ListSectors(list(ring)))
+    p = thesis.ThesisPioneer.__new__(thesis.ThesisPioneer)
+    p.name = "r0"
+    p.behaviour = Disperse()
+    p.localize, p.position2d = _Latest(pose), _Latest(odom)
+    p.neighbours = lambda x, y, r: np.array([n for n in neighbours if math.dist(n, (x, y)) < r]).reshape(-1, 2)
+    return p
+
+
+def test_neighbours_broadcast_positions_fill_the_sectors_their_bodies_span(monkeypatch):
+    # facing +y at (1, 1); a neighbour 1 m to the right (world +x), one 3 m away (beyond range)
+    p = _pioneer(
+        monkeypatch, (1.0, 1.0, math.pi / 2), neighbours=[(2.0, 1.0), (1.0, 4.0)], echoes=[(-90, 0.7), (90, 1.5)]
+    )
+    s = p.sectors()
+    # the echo on the right is that neighbour, the one on the left (nobody there) a wall
+    assert p.behaviour.walls.min_between(-90, -90) == math.inf
+    assert p.behaviour.walls.min_between(90, 90) == 1.5 == s.min_between(90, 90)
+    r = p.neighbour_radius
+    assert s.min_between(-85, -85) == pytest.approx(1.0 - r)  # on the robot's right, its surface
+    half = math.degrees(math.asin(r / 1.0))
+    assert s.min_between(-90 + half - 5, -90 + half - 5) == pytest.approx(1.0 - r)  # spans its width
+    assert s.min_between(-90 + half + 15, 80) == s.min_between(100, 270 - half - 15) == math.inf  # nothing else
+
+
+def test_a_localize_pose_that_jumps_away_from_the_odometry_is_reseeded(monkeypatch):
+    now = [0.0]
+    monkeypatch.setattr(thesis, "clock", lambda: type("C", (), {"now": lambda self: now[0]})())
+    p = _pioneer(monkeypatch, (5.0, 5.0, 0.0))
+    p.guard(p.localize.latest.pose)  # the reference
+    for t, odo, est in ((0.5, (0.2, 0.0, 0.0), (5.25, 5.05, 0.0)), (1.2, (0.4, 0.0, 0.0), (5.45, 5.0, 0.0))):
+        now[0] = t
+        p.position2d = _Latest(odo)
+        p.guard(est)  # a correction of 5 cm: passes, and becomes the reference after check_every
+    assert p.reseeds == 0 and not p.localize.calls
+    now[0] = 1.5
+    p.position2d = _Latest((0.5, 0.0, 0.0))
+    p.guard((6.9, 5.0, 0.0))  # 1.35 m ahead of where 0.1 m of odometry carried it
+    assert p.reseeds == 1
+    op, args = p.localize.calls[0]
+    assert op == "set_pose" and args["pose"] == pytest.approx([5.55, 5.0, 0.0])
+    now[0] = 1.6
+    p.guard((6.9, 5.0, 0.0))  # the driver has not answered yet: held
+    assert p.reseeds == 1
 
 
 async def _run(ep: str, follow) -> dict:
@@ -112,6 +175,12 @@ def test_ten_pioneer_3ats_with_full_stacks_swarm_and_are_judged_on_ground_truth(
     assert mon.contact_counts()[0] <= sum(c[0] for c in contacts["robots"].values())
     assert mon.contact_counts()[1] <= contacts["robot_wall"]
     assert f"{mon.contact_counts()[0]} robot-robot" in v.text
+    # The verdict's first half: no robot touched a robot or a wall during the judged run (counted
+    # by the simulator in every physics step).
+    assert mon.contact_counts() == (0, 0), f"contacts during the run: {v.text}"
+    # Its second half, 95 % of robot-time within 0.5 m, is not met yet: AMCL on a sonar ring that
+    # sees only other robots follows its odometry's drift until the robot reaches a wall; measured
+    # 89-94 % over 30 s (docs/scenarios/swarm.md). Asserted here: most robot-time is localized.
     assert mon.samples >= DURATION / mon.sample_every * 0.8
     assert not np.isnan(errors[:N]).any(), "the monitor judges from the first sample with every estimate"
     assert np.median(errors[np.isfinite(errors)]) < 0.3, f"median localization error {np.nanmedian(errors):.2f} m"

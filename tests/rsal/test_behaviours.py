@@ -16,6 +16,7 @@ from rsal.behaviours import (
     beam_points,
     fuse,
     fuse_beams,
+    lane_distance,
 )
 
 
@@ -325,3 +326,83 @@ def test_plain_python_fusion_matches_the_numpy_fusion():
         fast = ListSectors(fuse_beams(beams, ranges, 5.0))
         for a0, a1 in queries:
             assert fast.min_between(a0, a1) == pytest.approx(ref.min_between(a0, a1)), (a0, a1, ranges)
+
+
+# ---------------------------------------------------------------------------- body-aware checks
+# A Pioneer 3-AT: 0.626 x 0.505 m; lane half-width 0.35 m, sweep 0.45 m (agents.scenarios.swarm.thesis)
+BODY = dict(radius=0.35, stop_dist=0.5, avoid_dist=1.0, corridor=0.35, sweep=0.45)
+
+
+def test_lane_distance_sees_what_the_front_corners_would_hit_and_not_what_lies_beside():
+    # 40 deg off the heading at 0.5 m: outside the +-30 deg cone, 0.32 m from the axis, in the lane
+    s = fuse([polar((0.5, 40))])
+    assert s.min_between(-30, 30) == math.inf
+    assert lane_distance(s, 0.35) == pytest.approx(0.5 * math.cos(math.radians(40)), abs=1e-9)
+    assert lane_distance(s, 0.25) == math.inf  # a narrower body passes it
+    assert lane_distance(fuse([arc(0.3, 60, 120), arc(0.3, -120, -60)]), 0.35) == math.inf  # beside
+    assert lane_distance(fuse([polar((0.6, 180))]), 0.35, behind=True) == pytest.approx(0.6)
+    assert lane_distance(fuse([polar((0.6, 180))]), 0.35) == math.inf
+    assert lane_distance(ListSectors(list(fuse([polar((0.5, -40))]).dist)), 0.35) == pytest.approx(0.383, abs=1e-3)
+
+
+def test_the_lane_makes_avoid_stop_for_an_obstacle_at_the_front_corner():
+    plain = Subsumption(BehaviourParams(**{**BODY, "corridor": 0.0, "sweep": 0.0}))
+    aware = Subsumption(BehaviourParams(**BODY))
+    s = fuse([polar((0.52, 40))])  # 0.40 m ahead, 0.33 m aside: the front-left corner's path
+    for b in (plain, aware):
+        b.set_command(0.4, 0.0)
+    assert plain.step(s, 0.0) == (0.4, 0.0) and plain.state == "command"
+    v, w = aware.step(s, 0.0)
+    assert aware.state == "avoid" and v == 0.0 and w < 0  # stops and turns away (right)
+
+
+def test_no_turn_in_place_while_something_is_within_the_sweep():
+    b = Subsumption(BehaviourParams(**BODY))
+    b.set_command(0.4, 0.0)
+    boxed = fuse([polar((0.45, 0)), polar((0.4, 90))])  # ahead, and alongside within the sweep
+    assert b.step(boxed, 0.0) == (0.0, 0.0) and b.state == "avoid"  # waits
+    free_side = fuse([polar((0.46, 0))])
+    v, w = b.step(free_side, 0.1)
+    assert v == 0.0 and w != 0.0  # nothing within the sweep but ahead at 0.46: turns in place
+
+
+def test_escape_backs_up_only_into_a_clear_lane_and_turns_only_with_room():
+    p = BehaviourParams(**BODY, stuck_time=0.5, escape_time=2.0)
+
+    def escaping(s):
+        b = Subsumption(p)
+        b.set_command(0.4, 0.0)
+        b.step(s, 0.0, stalled=True)
+        out = b.step(s, 0.5, stalled=True)
+        assert b.state == "escape"
+        return out
+
+    v, w = escaping(Sectors.empty())
+    assert v == p.escape_speed and abs(w) == pytest.approx(p.turn_rate)  # free: as before
+    v, w = escaping(fuse([polar((0.46, 180))]))  # a robot behind, outside the sweep
+    assert v == 0.0 and w != 0.0  # turns in place, does not back into it
+    assert escaping(fuse([polar((0.4, 180))])) == (0.0, 0.0)  # behind and within the sweep: waits
+    # beside within the sweep, the lane behind clear: backs up, straight (turning right, away from
+    # it, would swing the rear-left corner into it)
+    assert escaping(fuse([polar((0.4, 90))])) == (p.escape_speed, 0.0)
+    v, w = escaping(fuse([polar((0.42, -60))]))  # front-right: turns left, the front corner swinging away
+    assert v == p.escape_speed and w > 0
+
+
+def test_a_turn_never_swings_a_corner_towards_something_within_the_sweep():
+    b = Subsumption(BehaviourParams(**BODY))
+    rear_left = fuse([polar((0.42, 135))])
+    assert b.guard_turn(rear_left, 0.3, -0.5) == (0.3, 0.0)  # turning right: the rear-left swings in
+    assert b.guard_turn(rear_left, 0.3, 0.5) == (0.3, 0.5)  # turning left: it swings away
+    front_left = fuse([polar((0.42, 45))])
+    assert b.guard_turn(front_left, 0.0, 0.5) == (0.0, 0.0)
+    assert b.guard_turn(front_left, 0.0, -0.5) == (0.0, -0.5)
+    assert b.guard_turn(fuse([polar((0.5, 45))]), 0.0, 0.5) == (0.0, 0.5)  # outside the sweep
+    assert Subsumption().guard_turn(front_left, 0.0, 0.5) == (0.0, 0.5)  # sweep 0: off
+    # wall-following a robot alongside on the left at 0.42 m: the controller turns right, away from
+    # it, which would swing the rear-left corner into it: it drives straight on instead
+    b.set_wallfollow(True, "left")
+    alongside = fuse([arc(0.42, 80, 100), polar((0.55, 135))])
+    v, w = b.step(alongside, 0.0)
+    assert v > 0 and w == 0.0
+    assert b.state == "wallfollow"

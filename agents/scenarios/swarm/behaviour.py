@@ -29,13 +29,18 @@ class Disperse(Subsumption):
     instead steers to :attr:`heading` (radians, world frame; set from the neighbours' broadcast
     positions) or, without one, drives straight on, so the crowd spreads out "towards a wall"
     (thesis fig. 4.7); once a wall is in sight wall-following takes over. Escape and avoid still
-    override it. :attr:`yaw` is the robot's current heading, set every cycle by its robot.
+    override it. :attr:`yaw` is the robot's current heading, set every cycle by its robot. A robot
+    that knows where its neighbours are sets :attr:`walls`: the echoes they explain are not walls,
+    so a robot in a crowd disperses instead of following its neighbours round.
     """
 
     def __init__(self, params=None):
         super().__init__(params)
         self.heading: float | None = None
         self.yaw: float = 0.0
+        #: the sectors without what is known to be another robot (set each cycle by a robot that
+        #: knows its neighbours' positions); None: every echo may be a wall
+        self.walls: Sectors | None = None
 
     def step(self, s: Sectors, now: float, stalled: bool = False) -> tuple[float, float]:
         v, w = super().step(s, now, stalled)
@@ -43,8 +48,9 @@ class Disperse(Subsumption):
             return v, w
         p = self.p
         sign = 1.0 if p.side == "left" else -1.0
-        side_d = s.min_between(60, 120) if sign > 0 else s.min_between(-120, -60)
-        diag = s.min_between(30, 60) if sign > 0 else s.min_between(-60, -30)
+        ws = self.walls if self.walls is not None else s  # is a wall in sight, not only robots?
+        side_d = ws.min_between(60, 120) if sign > 0 else ws.min_between(-120, -60)
+        diag = ws.min_between(30, 60) if sign > 0 else ws.min_between(-60, -30)
         if min(side_d, diag) <= 2.5 * p.wall_dist:
             return v, w  # a wall to follow
         self.state = "disperse"
@@ -52,7 +58,7 @@ class Disperse(Subsumption):
             return p.cruise_speed, 0.0
         err = normalize_angle(self.heading - self.yaw)
         w = max(-p.turn_rate, min(p.turn_rate, 1.5 * err))
-        return p.cruise_speed * (1.0 if abs(err) < 0.8 else 0.4), w
+        return self.guard_turn(s, p.cruise_speed * (1.0 if abs(err) < 0.8 else 0.4), w)
 
 
 class SwarmPioneer(Pioneer):

@@ -13,6 +13,13 @@ robot context also holds its localize and planner devices: it broadcasts the AMC
 odometry, and steers its dispersal by it (:class:`ThesisPioneer`). Its odometry is left as it is:
 setting it would look to AMCL like a jump of the robot.
 
+Its robot, :class:`ThesisPioneer`, keeps the crowd from touching and its estimate from leaping:
+the behaviour's body-aware checks (:func:`params_for_size`: the lane ahead and behind, no turn that
+swings a corner into something), the neighbours' broadcast positions filled into its sectors where
+the sonar ring's side gaps would miss them (echoes they explain are not walls to follow), and a
+guard that re-seeds the localize device when its pose jumps away from where the robot's own
+odometry carried it (:meth:`ThesisPioneer.guard`).
+
 :class:`ThesisSwarmMonitor` is the :class:`~agents.scenarios.swarm.monitor.SwarmMonitor` with the
 two ground-truth checks the full stack needs: every contact of a robot with a wall or another robot,
 counted by the simulator in every physics step (``sim:simulation:0`` ``rpc/contacts``), and each
@@ -36,12 +43,18 @@ import numpy as np
 
 from agents.registry import agent_class
 from agents.services import Outcome, SendPosition
-from rsal.behaviours import BehaviourParams
+from rsal.behaviours import SECTOR_COUNT, BehaviourParams, ListSectors
+from rsal.clock import clock
+from rsal.data import normalize_angle
+from rsal.geometry import compose, relative
 from rsal.robot import Pioneer
 
 from .agents import SwarmAgent
 from .behaviour import SwarmPioneer
 from .monitor import SwarmMonitor
+
+_SECTOR = 360.0 / SECTOR_COUNT
+_HALF_SECTOR = _SECTOR / 2
 
 __all__ = ["ThesisPioneer", "ThesisSwarmAgent", "ThesisSwarmMonitor", "params_for_size"]
 
@@ -64,24 +77,135 @@ def _nav_node(hub):
 
 class ThesisPioneer(SwarmPioneer):
     """A :class:`SwarmPioneer` whose dispersal layer reads the robot's heading from its localize
-    device (the map frame its neighbours' broadcasts are in), not from its odometry."""
+    device (the map frame its neighbours' broadcasts are in), not from its odometry, and whose
+    sectors also hold its neighbours' bodies where their broadcasts put them (:meth:`sectors`)."""
 
     localize = None  # the Position2d proxy of <robot>:position2d:2, set by the agent
+    #: ``neighbours(x, y, r)``: (k, 2) broadcast positions (map frame) of the other robots within
+    #: r m of (x, y), set by the agent; None: sonar only
+    neighbours = None
+    neighbour_range = 2.5  # m: neighbours nearer than this are fused into the sectors
+    neighbour_radius = 0.33  # m: a neighbour's body around its broadcast position (set from the size)
+    explained_within = 0.6  # m: an echo this near a neighbour's body or beyond is not a wall
+    reseeds = 0  # how often guard() re-seeded the localize device
+    _guard_ref = None  # (localize pose, odometry pose, time) of the last check
+    _guard_hold = 0.0
+
+    def sectors(self):
+        """The sonar ring's sectors with the neighbours' bodies fused in by minimum: each robot
+        within :attr:`neighbour_range` of the localize pose, seen as a disc of
+        :attr:`neighbour_radius` round its broadcast position, fills the sectors it spans with its
+        nearest distance. The ring's 16 cones leave 25 deg gaps at the sides where a robot alongside
+        goes unseen; the broadcasts close them (what a real swarm's shared positions are for)."""
+        s = super().sectors()
+        self.behaviour.walls = None
+        m = self.localize.latest if self.localize is not None else None
+        if self.neighbours is None or m is None:
+            return s
+        x, y, yaw = m.pose
+        near = self.neighbours(x, y, self.neighbour_range)
+        if not len(near):
+            return s
+        sonar = list(s.dist)
+        d = _bodies(near, x, y, yaw, self.neighbour_radius)  # the neighbours' bodies
+        # an echo no farther than a neighbour's body (give or take the poses' errors) is that robot
+        tol = self.explained_within
+        self.behaviour.walls = ListSectors([a if a < b - tol else math.inf for a, b in zip(sonar, d, strict=True)])
+        return ListSectors([min(a, b) for a, b in zip(sonar, d, strict=True)])
+
+    #: a localize pose farther than this (m) from where the odometry carried the last one within
+    #: ``check_every`` s is a jump of the filter, not a correction: it is re-seeded (:meth:`guard`)
+    jump_limit = 0.3
+    jump_yaw = 0.35  # rad, the same for the heading
+    check_every = 1.0  # s
+    reseed_cov = (0.01, 0.0, 0.0, 0.0, 0.01, 0.0, 0.0, 0.0, 0.005)  # m^2, rad^2: 0.1 m and 4 deg
 
     def update(self) -> None:
         m = self.localize.latest if self.localize is not None else None
         if m is None:
             super().update()
             return
+        self.guard(m.pose)
         self.behaviour.yaw = m.pose[2]
         Pioneer.update(self)
 
+    def guard(self, est) -> None:
+        """Re-seed the localize device when its pose jumps away from where the robot's own
+        odometry carried it. AMCL on a 16-sonar ring in a crowd sees mostly other robots, which
+        are not on its map; now and then the filter settles on a wrong fit and its pose leaps by
+        metres in a second, which no wheel turned for. The robot cannot see the truth, but it can
+        compare: every ``check_every`` s the pose becomes the reference, and a pose farther than
+        ``jump_limit`` m (or ``jump_yaw`` rad) from the reference moved on by the odometry since is
+        answered with ``set_pose`` at the odometry's pose (``reseed_cov``). Corrections smaller than
+        that (the filter's work near walls) pass."""
+        odo = self.position2d.latest
+        if odo is None or self.localize is None:
+            return
+        now = clock().now()
+        if self._guard_ref is None:
+            self._guard_ref = (tuple(est), odo.pose, now)
+            return
+        if now < self._guard_hold:
+            return
+        ref_est, ref_odo, t = self._guard_ref
+        pred = compose(ref_est, relative(ref_odo, odo.pose))
+        if (
+            math.hypot(est[0] - pred[0], est[1] - pred[1]) > self.jump_limit
+            or abs(normalize_angle(est[2] - pred[2])) > self.jump_yaw
+        ):
+            self.reseeds += 1
+            log.info(
+                "%s: localize pose jumped %.2f m from the odometry's; re-seeded",
+                self.name,
+                math.hypot(est[0] - pred[0], est[1] - pred[1]),
+            )
+            self.localize.rpc_async("set_pose", pose=[float(v) for v in pred], cov=list(self.reseed_cov))
+            self._guard_ref = (tuple(pred), odo.pose, now)
+            self._guard_hold = now + 0.5  # until the driver has published the new pose
+        elif now - t >= self.check_every:
+            self._guard_ref = (tuple(est), odo.pose, now)
 
-def params_for_size(length: float, width: float, base: BehaviourParams | None = None) -> BehaviourParams:
+
+def _bodies(near, x: float, y: float, yaw: float, r: float) -> list[float]:
+    """Per sector, the nearest surface of discs of radius ``r`` centred at the rows of ``near``
+    ((k, 2), world frame) seen from a robot at (``x``, ``y``) heading ``yaw``: each disc fills the
+    sectors its width spans (inf where none). Plain Python: for the few neighbours within reach it
+    is 3-10 times faster than numpy's per-call overhead (measured at 3, 8 and 16 neighbours)."""
+    d = [math.inf] * SECTOR_COUNT
+    for nx, ny in near.tolist():
+        dx, dy = nx - x, ny - y
+        dist = math.hypot(dx, dy)
+        if dist < 1e-6:
+            continue
+        surface = max(0.0, dist - r)
+        bearing = math.degrees(math.atan2(dy, dx) - yaw)
+        half = math.degrees(math.asin(min(1.0, r / dist)))
+        i0 = math.floor((bearing - half + _HALF_SECTOR) / _SECTOR)
+        i1 = min(math.floor((bearing + half + _HALF_SECTOR) / _SECTOR), i0 + SECTOR_COUNT - 1)
+        for i in range(i0, i1 + 1):
+            j = i % SECTOR_COUNT
+            if surface < d[j]:
+                d[j] = surface
+    return d
+
+
+def params_for_size(
+    length: float,
+    width: float,
+    base: BehaviourParams | None = None,
+    *,
+    lane_margin: float = 0.1,
+    sweep_margin: float = 0.05,
+) -> BehaviourParams:
     """The behaviour's distances (``radius``, ``stop_dist``, ``avoid_dist``, ``wall_dist``) scaled
     from the Pioneer 2DX's (44 x 38 cm, the defaults of :class:`rsal.behaviours.BehaviourParams`) to
     a base of ``length`` x ``width`` m: a Pioneer 3-AT (62.6 x 50.5 cm) keeps 1.4 times the
-    distance, so its longer body stops before it touches what the 2DX's distances let it reach."""
+    distance, so its longer body stops before it touches what the 2DX's distances let it reach.
+
+    The body-aware checks of :class:`rsal.behaviours.BehaviourParams` are on: the front is the
+    lane of the body's half-width plus ``lane_margin`` m (a neighbour at 40 deg is in the way of
+    the 3-AT's front corners, outside the plain +-30 deg cone), escape backs up only into a clear
+    lane, and nothing turns in place within the body's half-diagonal plus ``sweep_margin`` m."""
     base = base or BehaviourParams()
     k = max(1.0, max(length, width) / 2.0 / 0.22)
     return dataclasses.replace(
@@ -90,6 +214,8 @@ def params_for_size(length: float, width: float, base: BehaviourParams | None = 
         stop_dist=base.stop_dist * k,
         avoid_dist=base.avoid_dist * k,
         wall_dist=base.wall_dist * k,
+        corridor=width / 2.0 + lane_margin,
+        sweep=math.hypot(length / 2.0, width / 2.0) + sweep_margin,
     )
 
 
@@ -128,7 +254,12 @@ class ThesisSwarmAgent(SwarmAgent):
         robot = super()._build_shared(hub)
         robot.localize = self.localize
         size = robot.position2d.describe(timeout=5.0).geometry.get("size") or [0.44, 0.38]
-        robot.behaviour.p = params_for_size(float(size[0]), float(size[1]), robot.behaviour.p)
+        length, width = float(size[0]), float(size[1])
+        robot.behaviour.p = params_for_size(length, width, robot.behaviour.p)
+        # the crowd is of one model: a neighbour's body is about this robot's, between its
+        # inscribed and circumscribed radius
+        robot.neighbour_radius = (width / 2.0 + math.hypot(length / 2.0, width / 2.0)) / 2.0
+        robot.neighbours = lambda x, y, r: hub.near(x, y, r, exclude=name)
         self.frame = "map"  # what it broadcasts and steers by
         return robot
 
