@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+from rsal.procs import die_with_parent
+
 ROOT = Path(__file__).resolve().parent.parent
 MAPS = ROOT / "maps"
 
@@ -66,8 +68,11 @@ class Proc:
         self.args = args
         self.log_path = Path(os.environ.get("PYTEST_TMP", "/tmp")) / f"proc-{os.getpid()}-{time.monotonic_ns()}.log"
         self._log = open(self.log_path, "w+b")
+        # SIGTERM when the test process dies (a killed pytest leaves no simulator running); tied to
+        # the forking thread, so only from the main thread
+        orphan = die_with_parent() if threading.current_thread() is threading.main_thread() else {}
         self.p = subprocess.Popen(
-            args, stdout=self._log, stderr=subprocess.STDOUT, cwd=cwd, env=e, start_new_session=True
+            args, stdout=self._log, stderr=subprocess.STDOUT, cwd=cwd, env=e, start_new_session=True, **orphan
         )
 
     @property
