@@ -252,7 +252,7 @@ class HostStep:
 
     @staticmethod
     def takes(r) -> bool:
-        return type(r) is SwarmPioneer and not r.laser_enabled and len(r.sonars) == 1
+        return type(r) is SwarmPioneer and r.vectorised and not r.laser_enabled and len(r.sonars) == 1
 
     def __call__(self, robots: list) -> list:
         rest, rows, poses, scans, rmax, beams, stall = [], [], [], [], [], [], []
