@@ -24,12 +24,12 @@ from __future__ import annotations
 import math
 import time
 from operator import attrgetter
+from typing import NamedTuple
 
 import numpy as np
 
 from rsal.behaviours import SECTOR_COUNT
 from rsal.client import HOLD_REFRESH
-from rsal.data import Position
 from rsal.geometry import wrap
 
 from .behaviour import Disperse, SwarmPioneer
@@ -42,6 +42,16 @@ IDLE, COMMAND, ESCAPE, AVOID, WALLFOLLOW, DISPERSE = range(len(STATES))
 _CODE = {s: i for i, s in enumerate(STATES)}
 _SECTOR = 360.0 / SECTOR_COUNT
 _SIN65 = math.sin(math.radians(65))
+
+
+class _Pose(NamedTuple):
+    """A robot's pose at its last cycle (``Pioneer._last_pose``: only ``x`` and ``y`` are read, for
+    the distance travelled); a tuple, since a validated :class:`rsal.data.Position` per robot and
+    cycle cost a third of the step."""
+
+    x: float
+    y: float
+    yaw: float
 
 
 def sector_span(a0_deg: float, a1_deg: float) -> np.ndarray:
@@ -249,13 +259,14 @@ class HostStep:
         self.step_s = 0.0
         self.send_s = 0.0
         self._beams: dict[int, np.ndarray] = {}  # id(robot) -> (k, 4) geometry
+        self._params: tuple[tuple[int, ...], VectorState] | None = None  # the rows' parameters, by their ids
 
     @staticmethod
     def takes(r) -> bool:
         return type(r) is SwarmPioneer and r.vectorised and not r.laser_enabled and len(r.sonars) == 1
 
     def __call__(self, robots: list) -> list:
-        rest, rows, poses, scans, rmax, beams, stall = [], [], [], [], [], [], []
+        rest, rows, poses, scans, rmax, beams, stall, last = [], [], [], [], [], [], [], []
         k = None
         for r in robots:
             if not self.takes(r):
@@ -281,6 +292,8 @@ class HostStep:
             rmax.append(sm.range_max)
             beams.append(b)
             stall.append(bool(m.stall))
+            lp = r._last_pose
+            last.append((math.nan, math.nan) if lp is None else (lp.x, lp.y))
         if not rows:
             return rest
         t0 = time.perf_counter()
@@ -295,20 +308,26 @@ class HostStep:
         sectors = fuse_rings(np.stack(beams), ranges, rm)
         behaviours = [r.behaviour for r in rows]
         st = VectorState(n)
-        st.read_params(behaviours)
+        key = tuple(map(id, map(attrgetter("p"), behaviours)))  # parameters are read when the rows change
+        if self._params is None or self._params[0] != key:
+            st.read_params(behaviours)
+            self._params = (key, st)
+        else:
+            for name in VectorState._PARAMS:
+                setattr(st, name, getattr(self._params[1], name))
         st.read(behaviours)
         st.yaw = pose[:, 2].copy()
         out = st.step(sectors, self.now(), np.array(stall, dtype=bool))
         changed = set(st.write(behaviours))
         cmds = np.round(out, 3).tolist()
+        moved = np.hypot(*(pose[:, :2] - np.array(last, dtype=float)).T)
+        moved = np.where(np.isnan(moved), 0.0, moved).tolist()  # 0 for a robot's first cycle
         t1 = time.perf_counter()
-        for i, (r, p, b, c) in enumerate(zip(rows, poses, behaviours, cmds, strict=True)):
+        rows_out = zip(rows, poses, behaviours, cmds, moved, strict=True)
+        for i, (r, p, b, c, d) in enumerate(rows_out):
             b.yaw = p[2]
-            last = r._last_pose
-            cur = Position(*p)
-            if last is not None:
-                r.distance += math.hypot(cur.x - last.x, cur.y - last.y)
-            r._last_pose = cur
+            r.distance += d
+            r._last_pose = _Pose(*p)
             if i in changed:
                 for fn in r._state_listeners:
                     fn(b.state)
