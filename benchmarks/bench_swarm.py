@@ -32,9 +32,18 @@ every (receiver, broadcast) pair whose robots were within R at send time
 (:class:`agents.scenarios.swarm.NeighbourhoodDelivery`). ``--all-max`` skips the all-to-all form above
 that many robots.
 
+Several agent hosts (``--hosts H``): H agent-host processes share the N robots in consecutive
+blocks (as a scenario's ``hosts: H``), start together, measure the same window (files in a
+temporary directory are their barrier) and exchange their senders' counts and, in the near form,
+their agents' figures for the first host's monitor; the result line combines them (sums; the worse
+host's control load and overruns; one latency histogram). Each host runs the swarm's vectorised
+host step (:mod:`agents.scenarios.swarm.vector`) unless ``--no-vector``; ``--before`` also runs
+each form as before, one host with every robot's own cycle, in the same run.
+
 Output: ``bench=swarm key=value ...`` lines. Usage:
 ``python benchmarks/bench_swarm.py --robots 100,200,500 --seconds 30``;
-``python benchmarks/bench_swarm.py --robots 100,300,1000 --neighbourhood 5``
+``python benchmarks/bench_swarm.py --robots 100,300,1000 --neighbourhood 5``;
+``python benchmarks/bench_swarm.py --robots 100,300 --hosts 2 --before --neighbourhood 5``
 """
 
 from __future__ import annotations
