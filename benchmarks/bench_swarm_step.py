@@ -54,7 +54,7 @@ def run(n: int, cycles: int, warmup: int, seed: int) -> dict:
     step = HostStep(lambda: clock().now())
     cpu = {"per_robot": 0.0, "vector": 0.0}
     for c in range(warmup + cycles):
-        for i, r in enumerate(robots):  # the network's samples: not timed
+        for r in robots:  # the network's samples: not timed
             pose = (float(rng.uniform(-5, 5)), float(rng.uniform(-5, 5)), float(rng.uniform(-3, 3)))
             fab.push(r.position2d, Position2dData(0.0, pose, (0.0, 0.0, 0.0), False))
             ranges = rng.uniform(0.05, 5.0, 8)
