@@ -10,7 +10,9 @@ a hundred threads contending for the GIL and a hundred decodings of every broadc
   (``direct_callbacks``), not on a Python thread per subscription;
 - one control loop on the host's asyncio loop that runs every added robot's ``update()`` in turn, in
   slices of :attr:`RobotHub.slice_size` robots with the loop served in between, so no message waits
-  behind a whole cycle (:meth:`add_robot`, :meth:`remove_robot`);
+  behind a whole cycle (:meth:`add_robot`, :meth:`remove_robot`); or, where :attr:`RobotHub.batch`
+  is set, one call for all the robots it takes (the swarm's vectorised step,
+  :mod:`agents.scenarios.swarm.vector`) and ``update()`` for the others;
 - one ``send_position`` subscription (:meth:`listen`) whose messages are decoded once, put once on
   the host's blackboard :attr:`RobotHub.board` (every agent of the host receives the same messages)
   and handed to the listeners once per message, on the loop (SPADE's local delivery short-cut);
@@ -106,6 +108,9 @@ class RobotHub:
         self.busy_cpu_s = 0.0  # CPU time of the robots' updates (the loop thread's), load-independent
         self.updates = 0  # robot updates run
         self.max_cycle_s = 0.0
+        #: optional one-call step for many robots at once (e.g. the swarm's vectorised step):
+        #: fn(robots) runs the cycle of those it takes and returns the others, which run their own update()
+        self.batch: Callable[[list[Robot]], list[Robot]] | None = None
 
     @classmethod
     def attach(cls, host: AgentHost, agent: Agent, *, period: float, board_timeout: float = 5.0) -> RobotHub:
@@ -285,6 +290,23 @@ class RobotHub:
             start = loop.time()
             busy = 0.0
             robots = list(self.robots.values())
+            if self.batch is not None and robots:
+                t0 = time.perf_counter()
+                c0 = time.thread_time()
+                try:
+                    rest = self.batch(robots)
+                except Exception:
+                    log.exception("the batched robot step failed; the robots run their own cycles")
+                    self.batch, rest = None, robots
+                taken = {id(r) for r in rest}
+                for r in robots:
+                    if id(r) not in taken:
+                        r.updates += 1
+                self.updates += len(robots) - len(rest)
+                busy += time.perf_counter() - t0
+                self.busy_cpu_s += time.thread_time() - c0
+                robots = rest
+                await asyncio.sleep(0)
             for k in range(0, len(robots), self.slice_size):
                 t0 = time.perf_counter()
                 c0 = time.thread_time()

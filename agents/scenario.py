@@ -67,7 +67,7 @@ _SIM = ("world", "nav", "nav_robots", "speedup", "seed")
 _REHEARSE = ("world", "robot", "nav", "pioneer", "laser", "node", "seed")
 _PIONEERS = ("P2DX", "P3AT")  # mrs_bridge.emulators.p2os.DIST_CONV
 _LASERS = ("URG-04LX", "UTM-30LX")  # mrs_bridge.emulators.urg.SENSORS
-_AGENT = ("type", "robot", "id", "args", "host", "machine", "count")
+_AGENT = ("type", "robot", "id", "args", "host", "hosts", "machine", "count")
 _END = ("event", "count", "timeout", "duration", "travel", "clearance", "never_flat", "charged")
 _NAV = ("vfh", "nd", "snd")
 
@@ -437,6 +437,22 @@ def _agents(c: _Ctx, where: str, raw: Any, agent_types: dict[str, str], per_type
         raise c.fail(f"{where}.robot", f'{count} agents cannot share robot {robot!r}; write e.g. robot: "r{{i}}"')
     if count > 1 and agent_id is not None and "{i}" not in agent_id:
         raise c.fail(f"{where}.id", f'{count} agents cannot share id {agent_id!r}; write e.g. id: "{agent_id}{{i}}"')
+    hosts = 1
+    if m.get("hosts") is not None:
+        hosts = c.whole(m["hosts"], f"{where}.hosts")
+        if host is None:
+            raise c.fail(
+                f"{where}.hosts",
+                f"spreads the agents over {hosts} host groups named after 'host'; add e.g. host: swarm",
+            )
+        if hosts > count:
+            raise c.fail(
+                f"{where}.hosts", f"{hosts} agent hosts for {count} agent(s); give at most count ({count}) hosts"
+            )
+        if "{i}" in host:
+            raise c.fail(
+                f"{where}.host", f"with 'hosts' the groups are named {host!r} + 0..{hosts - 1}; remove '{{i}}'"
+            )
     out = []
     for i in range(count):
         r = robot.replace("{i}", str(i)) if has_count else robot
@@ -452,7 +468,8 @@ def _agents(c: _Ctx, where: str, raw: Any, agent_types: dict[str, str], per_type
             check_name("agent id", aid)
         except ValueError as e:
             raise c.fail(f"{where}.id", f"{e}; choose another id") from None
-        out.append(AgentEntry(t, agent_types[t], aid, r, dict(args), host, machine))
+        group = f"{host}{i * hosts // count}" if hosts > 1 else host  # consecutive blocks: neighbours together
+        out.append(AgentEntry(t, agent_types[t], aid, r, dict(args), group, machine))
     return out
 
 

@@ -32,9 +32,18 @@ every (receiver, broadcast) pair whose robots were within R at send time
 (:class:`agents.scenarios.swarm.NeighbourhoodDelivery`). ``--all-max`` skips the all-to-all form above
 that many robots.
 
+Several agent hosts (``--hosts H``): H agent-host processes share the N robots in consecutive
+blocks (as a scenario's ``hosts: H``), start together, measure the same window (files in a
+temporary directory are their barrier) and exchange their senders' counts and, in the near form,
+their agents' figures for the first host's monitor; the result line combines them (sums; the worse
+host's control load and overruns; one latency histogram). Each host runs the swarm's vectorised
+host step (:mod:`agents.scenarios.swarm.vector`) unless ``--no-vector``; ``--before`` also runs
+each form as before, one host with every robot's own cycle, in the same run.
+
 Output: ``bench=swarm key=value ...`` lines. Usage:
 ``python benchmarks/bench_swarm.py --robots 100,200,500 --seconds 30``;
-``python benchmarks/bench_swarm.py --robots 100,300,1000 --neighbourhood 5``
+``python benchmarks/bench_swarm.py --robots 100,300,1000 --neighbourhood 5``;
+``python benchmarks/bench_swarm.py --robots 100,300 --hosts 2 --before --neighbourhood 5``
 """
 
 from __future__ import annotations
@@ -62,6 +71,17 @@ def _cpu_seconds(pid: int) -> float:
         return float("nan")
 
 
+async def _barrier(sync: Path, name: str, index: int, hosts: int, timeout: float, write: bool = True) -> None:
+    """Wait until every host of the run has written ``<name><k>`` in ``sync`` (after writing its own)."""
+    if write:
+        (sync / f"{name}{index}").write_text("1")
+    deadline = time.monotonic() + timeout
+    while not all((sync / f"{name}{k}").exists() or (sync / f"{name}{k}.json").exists() for k in range(hosts)):
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"bench_swarm: host {index}: the other agent hosts were not {name} in {timeout:g} s")
+        await asyncio.sleep(0.1)
+
+
 async def _host(args) -> dict:
     from agents.runtime import AgentHost
     from agents.scenarios.swarm import LatencyHistogram, SwarmAgent, SwarmMonitor
@@ -87,20 +107,31 @@ async def _host(args) -> dict:
                 self._hub.detach(self)
 
     n = args.robots
+    first, mine = args.first, args.count or n  # this host's robots: r<first> .. r<first + mine - 1>
+    sync = Path(args.sync_dir) if args.sync_dir else None
     bare = args.mode == "bare"
     cls = BareAgent if bare else SwarmAgent
-    transport = TransportArgs(listen=[args.connect]) if bare else TransportArgs(connect=[args.connect])
+    if bare and args.index == 0:  # no simulator: the first host listens on its own port
+        transport = TransportArgs(listen=[args.connect])
+    else:
+        transport = TransportArgs(connect=[args.connect])
     near = args.neighbourhood if args.form == "near" else 0.0
     async with AgentHost.connect(transport) as host:
         t0 = time.perf_counter()
         mon = None
-        if near:  # the ground-truth judge, listening to every cell before the first broadcast
+        if near and args.index == 0:  # the ground-truth judge, listening to every cell before the first broadcast
             mon = SwarmMonitor("monitor", robots=n, duration=1e9, neighbourhood=near, startup_timeout=300)
             await host.start(mon)
         kw = {"neighbourhood": near, "cell_size": args.cell_size} if near else {}
-        agents = [cls(f"swarm{i}", robot=f"r{i}", startup_timeout=300, stats_every=0, **kw) for i in range(n)]
+        kw["vector"] = args.vector
+        agents = [
+            cls(f"swarm{i}", robot=f"r{i}", startup_timeout=300, stats_every=0, **kw)
+            for i in range(first, first + mine)
+        ]
         await asyncio.gather(*(host.start(a) for a in agents))
         startup = time.perf_counter() - t0
+        if sync is not None:  # every host measures the same window: all started first
+            await _barrier(sync, "ready", args.index, args.hosts, args.host_timeout)
         sim = None
         if not bare:
             fab = Fabric(host.session, own_session=False)
@@ -147,6 +178,12 @@ async def _host(args) -> dict:
         for a in agents:
             a.stop_broadcast()
         sent = {a.id: a.sent for a in agents}
+        if sync is not None:  # every host's senders, for the all-to-all count
+            await asyncio.sleep(0.5)
+            (sync / f"sent{args.index}.json").write_text(json.dumps(sent))
+            await _barrier(sync, "sent", args.index, args.hosts, 60.0, write=False)
+            for k in range(args.hosts):
+                sent.update(json.loads((sync / f"sent{k}.json").read_text()))
 
         def counts():
             got = want = 0
@@ -160,12 +197,26 @@ async def _host(args) -> dict:
 
         if near:  # ground truth: every receiver within the radius at send time
             await asyncio.sleep(2.0)  # the last broadcasts in flight, then beyond the monitor's settle time
-            t_j = time.perf_counter()
-            res = mon.delivery.result({a.id: a.stats() for a in agents})
-            got, want = res.received, res.expected
-            judge_s = time.perf_counter() - t_j
-            if res.missing:
-                print(f"missing (receiver, sender, seq, m): {res.missing}", file=sys.stderr, flush=True)
+            stats = {a.id: a.stats() for a in agents}
+            res = None
+            judge_s = 0.0
+            got = want = 0
+            if sync is not None and args.index > 0:  # the first host's monitor judges every host's agents
+                (sync / f"stats{args.index}.json").write_text(json.dumps(stats))
+            if mon is not None:
+                for k in range(1, args.hosts):
+                    f = sync / f"stats{k}.json"
+                    deadline = time.monotonic() + 60
+                    while not f.exists() and time.monotonic() < deadline:
+                        await asyncio.sleep(0.2)
+                    await asyncio.sleep(0.2)
+                    stats.update(json.loads(f.read_text()))
+                t_j = time.perf_counter()
+                res = mon.delivery.result(stats)
+                got, want = res.received, res.expected
+                judge_s = time.perf_counter() - t_j
+                if res.missing:
+                    print(f"missing (receiver, sender, seq, m): {res.missing}", file=sys.stderr, flush=True)
         else:
             deadline = time.monotonic() + 20
             while time.monotonic() < deadline:
@@ -179,7 +230,7 @@ async def _host(args) -> dict:
         cpu = s1["cpu"] - s0["cpu"]
         upd_cpu = (s1["busy_cpu"] - s0["busy_cpu"]) / max(1, s1["updates"] - s0["updates"])
         extra = {}
-        if near:
+        if near and mon is not None:
             extra = {
                 "radius": near,
                 "cell": args.cell_size or near,
@@ -189,6 +240,8 @@ async def _host(args) -> dict:
             }
         return {
             "robots": n,
+            "hosts": args.hosts,
+            "vector": args.vector,
             "mode": args.mode,
             "form": "near" if near else "all",
             "startup_s": round(startup, 1),
@@ -214,6 +267,7 @@ async def _host(args) -> dict:
             if args.sim_pid
             else None,
             **extra,
+            "hist": hist.to_dict(),
         }
 
 
@@ -230,19 +284,65 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _run_host(n: int, mode: str, ep: str, args, sim_pid: int = 0, form: str = "all") -> dict:
-    cmd = [sys.executable, __file__, "--role", "host", "--mode", mode, "--robots", str(n), "--connect", ep]
-    cmd += ["--form", form, "--neighbourhood", str(args.neighbourhood), "--cell-size", str(args.cell_size)]
-    if args.profile:
-        cmd += ["--profile", args.profile]
-    cmd += ["--seconds", str(args.seconds), "--warmup", str(args.warmup), "--sim-pid", str(sim_pid)]
-    p = subprocess.run(
-        cmd, capture_output=True, text=True, timeout=args.seconds + args.warmup + args.host_timeout, cwd=ROOT
-    )
-    for line in p.stdout.splitlines():
-        if line.startswith("RESULT "):
-            return json.loads(line[7:])
-    raise RuntimeError(f"agent host for {n} robots failed (exit {p.returncode}):\n{p.stderr[-2000:]}")
+def _run_host(
+    n: int, mode: str, ep: str, args, sim_pid: int = 0, form: str = "all", hosts: int = 1, vector: bool = True
+) -> dict:
+    """Run ``hosts`` agent-host processes sharing the N robots in consecutive blocks (as a
+    scenario's ``hosts:``); their figures combined into one result."""
+    from agents.scenarios.swarm import LatencyHistogram
+
+    with tempfile.TemporaryDirectory() as sync:
+        procs = []
+        for k in range(hosts):
+            first, last = k * n // hosts, (k + 1) * n // hosts
+            cmd = [sys.executable, __file__, "--role", "host", "--mode", mode, "--robots", str(n), "--connect", ep]
+            cmd += ["--form", form, "--neighbourhood", str(args.neighbourhood), "--cell-size", str(args.cell_size)]
+            cmd += ["--index", str(k), "--hosts", str(hosts), "--first", str(first), "--count", str(last - first)]
+            cmd += ["--sync-dir", sync] + ([] if vector else ["--no-vector"])
+            if args.profile:
+                cmd += ["--profile", f"{args.profile}.h{k}"]
+            cmd += ["--seconds", str(args.seconds), "--warmup", str(args.warmup), "--sim-pid", str(sim_pid)]
+            cmd += ["--host-timeout", str(args.host_timeout)]
+            procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT))
+            if mode == "bare" and k == 0:
+                time.sleep(1.0)  # the first host listens; the others connect to it
+        results = []
+        try:
+            for p in procs:
+                out, err = p.communicate(timeout=args.seconds + args.warmup + args.host_timeout)
+                r = next((json.loads(ln[7:]) for ln in out.splitlines() if ln.startswith("RESULT ")), None)
+                if r is None:
+                    raise RuntimeError(f"agent host for {n} robots failed (exit {p.returncode}):\n{err[-2000:]}")
+                results.append(r)
+        finally:
+            for p in procs:
+                if p.poll() is None:
+                    p.kill()
+                    p.wait(5)
+    if len(results) == 1:
+        r = results[0]
+    else:
+        r = dict(results[0])
+        for key in ("publish_per_s", "deliver_per_s", "delivered", "expected", "host_cpu", "host_cores_rt"):
+            if r.get(key) is not None:
+                r[key] = round(sum(x[key] for x in results), 2)
+        for key in ("startup_s", "control_load", "overrun_pct"):
+            if r.get(key) is not None:
+                r[key] = max(x[key] for x in results)
+        if r.get("rtf") is not None:
+            r["rtf"] = min(x["rtf"] for x in results)
+        if r.get("update_cpu_us") is not None:
+            r["update_cpu_us"] = round(sum(x["update_cpu_us"] for x in results) / len(results), 1)
+        r["host_cpu_each"] = ",".join(str(x["host_cpu"]) for x in results)
+        r["delivery_pct"] = round(100.0 * r["delivered"] / r["expected"], 4) if r["expected"] else 0.0
+    hist = LatencyHistogram()
+    for x in results:
+        hist.merge(LatencyHistogram.from_dict(x.pop("hist")))
+    r.pop("hist", None)
+    r["p50_ms"] = round(1000 * hist.quantile(0.5), 2)
+    r["p99_ms"] = round(1000 * hist.quantile(0.99), 2)
+    r["max_ms"] = round(1000 * hist.max_s, 1)
+    return r
 
 
 def _line(r: dict) -> str:
@@ -254,23 +354,25 @@ def run(args) -> None:
     for n in args.robot_list:
         if args.baseline:
             ep = f"tcp/127.0.0.1:{_free_port()}"
-            r = _run_host(n, "bare", ep, args)  # no simulator: the host listens on its own port
+            r = _run_host(n, "bare", ep, args, hosts=args.hosts)  # no simulator: the first host listens
             print(_line(r), flush=True)
         forms = ["all", "near"] if args.neighbourhood else ["all"]
         if args.neighbourhood and n > args.all_max:
             forms = ["near"]
+        variants = [(1, False), (args.hosts, args.vector)] if args.before else [(args.hosts, args.vector)]
         for form in forms:
-            r = _run_sim_and_host(n, form, args)
-            realtime = (r["rtf"] or 0) >= 0.95 and (r["overrun_pct"] or 0) < 5.0
-            r["realtime"] = realtime
-            print(_line(r), flush=True)
-            if realtime:
-                largest[form] = n
+            for hosts, vector in variants:
+                r = _run_sim_and_host(n, form, args, hosts, vector)
+                realtime = (r["rtf"] or 0) >= 0.95 and (r["overrun_pct"] or 0) < 5.0
+                r["realtime"] = realtime
+                print(_line(r), flush=True)
+                if realtime:
+                    largest[f"{form} hosts={hosts} vector={vector}"] = n
     for form, n in largest.items():
         print(f"bench=swarm summary form={form} largest_realtime={n}", flush=True)
 
 
-def _run_sim_and_host(n: int, form: str, args) -> dict:
+def _run_sim_and_host(n: int, form: str, args, hosts: int = 1, vector: bool = True) -> dict:
     from agents.scenarios.swarm import write_crowd_world
     from rsal.procs import die_with_parent
 
@@ -287,7 +389,7 @@ def _run_sim_and_host(n: int, form: str, args) -> dict:
             **die_with_parent(),
         )
         try:
-            return _run_host(n, "robots", ep, args, sim.pid, form)
+            return _run_host(n, "robots", ep, args, sim.pid, form, hosts, vector)
         finally:
             sim.terminate()
             try:
@@ -318,6 +420,22 @@ def main() -> None:
         "--host-timeout", type=float, default=600.0, help="seconds an agent host may take beyond the run (start-up)"
     )
     ap.add_argument("--profile", default="", help="cProfile the agent host's loop into PREFIX.<form>.<n>.prof")
+    ap.add_argument("--hosts", type=int, default=1, help="agent-host processes sharing the robots (default 1)")
+    ap.add_argument(
+        "--no-vector",
+        dest="vector",
+        action="store_false",
+        help="each robot runs its own behaviour cycle (not the host's vectorised step)",
+    )
+    ap.add_argument(
+        "--before",
+        action="store_true",
+        help="also run each form as before: one host, no vectorised step (same run, same crowd)",
+    )
+    ap.add_argument("--index", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--first", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--count", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--sync-dir", default="", help=argparse.SUPPRESS)
     ap.add_argument("--form", choices=["all", "near"], default="all", help=argparse.SUPPRESS)
     ap.add_argument("--role", choices=["main", "host"], default="main", help=argparse.SUPPRESS)
     ap.add_argument("--mode", choices=["robots", "bare"], default="robots", help=argparse.SUPPRESS)
@@ -332,6 +450,8 @@ def main() -> None:
         args.robot_list = [int(x) for x in args.robots.split(",") if x.strip()]
     except ValueError:
         sys.exit(f"bench_swarm: --robots {args.robots!r} must be comma-separated integers, e.g. 100,200")
+    if args.hosts < 1 or any(n < args.hosts for n in args.robot_list):
+        sys.exit(f"bench_swarm: --hosts {args.hosts} must be at least 1 and at most the smallest --robots count")
     if args.neighbourhood < 0 or args.cell_size < 0:
         sys.exit("bench_swarm: --neighbourhood and --cell-size must be >= 0 metres, e.g. --neighbourhood 5")
     run(args)

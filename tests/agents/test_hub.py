@@ -115,6 +115,37 @@ def test_the_control_loop_runs_each_robot_until_removed_and_the_last_detach_clos
     wait_until(lambda: hub._task.done(), 5.0, "the control loop ends with the hub")
 
 
+def test_a_batch_step_runs_the_robots_it_takes_and_the_others_run_their_own_cycle(net):
+    lt, host, _ = net
+    a = Member("a")
+    lt.run(host.start(a))
+    hub = a.hub
+    taken, own = CountingRobot("taken"), CountingRobot("own")
+    own.calls = 5  # no failing cycle here
+    batches: list[list[str]] = []
+
+    def batch(robots):
+        batches.append([r.name for r in robots])
+        return [r for r in robots if r is not taken]
+
+    hub.batch = batch
+    hub.add_robot("taken", taken)
+    hub.add_robot("own", own)
+    wait_until(lambda: taken.updates >= 5 and own.updates >= 5, 10.0, "both robots cycle")
+    assert taken.calls == 0  # its cycle was the batch's
+    assert own.calls - 5 == own.updates  # its own update() every cycle
+    assert all(set(b) <= {"taken", "own"} for b in batches) and ["taken", "own"] in batches
+
+    def broken(robots):
+        raise RuntimeError("a failing batch is logged; the robots run their own cycles from then on")
+
+    hub.batch = broken
+    n = taken.calls
+    wait_until(lambda: taken.calls >= n + 3, 10.0, "the robot the batch took runs its own cycle")
+    assert hub.batch is None
+    lt.run(host.kill(a.id))
+
+
 class MovingRobot(CountingRobot):
     """A robot whose pose the test sets (``position2d.latest.pose``), as the hub reads it."""
 

@@ -318,3 +318,30 @@ def test_rehearse_section_mistakes_are_one_line(tmp_path):
     assert "applications.mixed.simulator.speedup: the rehearsed real world runs in real time" in msg
     msg = error(tmp_path, REHEARSED.replace("rehearse: {world: WORLD,", "rehearse: {world: nowhere.world,"))
     assert "rehearse.world: file 'nowhere.world' does not exist" in msg
+
+
+def test_hosts_spreads_a_count_over_that_many_host_groups_in_blocks(tmp_path):
+    sc = load_scenario(write(tmp_path, GOOD.replace("host: hunters}", "host: hunters, hosts: 2}")))
+    app = sc.applications["virtual"]
+    assert [a.host for a in app.agents[1:4]] == ["hunters0", "hunters0", "hunters1"]
+    groups = app.groups()
+    assert [a.id for a in groups["hunters0"]] == ["hunter0", "hunter1"]
+    assert [a.id for a in groups["hunters1"]] == ["hunter2"]
+    assert "hunters" not in groups
+    one = load_scenario(write(tmp_path, GOOD.replace("host: hunters}", "host: hunters, hosts: 1}"), "one.yaml"))
+    assert {a.host for a in one.applications["virtual"].agents[1:4]} == {"hunters"}
+
+
+def test_bad_hosts_values_are_one_line_errors(tmp_path):
+    msg = error(tmp_path, GOOD.replace("host: hunters}", "host: hunters, hosts: 0}"))
+    assert "agents[1].hosts: must be at least 1, not 0" in msg
+    msg = error(tmp_path, GOOD.replace("host: hunters}", "host: hunters, hosts: two}"))
+    assert "agents[1].hosts: must be a whole number, not the string 'two'" in msg
+    msg = error(tmp_path, GOOD.replace("host: hunters}", "host: hunters, hosts: 4}"))
+    assert "agents[1].hosts: 4 agent hosts for 3 agent(s); give at most count (3) hosts" in msg
+    msg = error(tmp_path, GOOD.replace(", host: hunters}", ", hosts: 2}"))
+    assert "agents[1].hosts: spreads the agents over 2 host groups named after 'host'; add e.g. host: swarm" in msg
+    msg = error(tmp_path, GOOD.replace("host: hunters}", 'host: "h{i}", hosts: 2}'))
+    assert "agents[1].host: with 'hosts' the groups are named 'h{i}' + 0..1; remove '{i}'" in msg
+    msg = error(tmp_path, GOOD.replace("host: hunters}", "host: hunters, hostz: 2}"))
+    assert "hosts" in msg  # an unknown key: did you mean

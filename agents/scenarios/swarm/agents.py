@@ -56,6 +56,7 @@ from .behaviour import SwarmPioneer, away_from, away_headings
 from .ledger import NearLedger, Received
 from .messages import STATS_SERVICE
 from .metrics import LatencyHistogram, latency_bin, sequence
+from .vector import HostStep
 
 __all__ = ["SwarmAgent"]
 
@@ -111,6 +112,10 @@ class SwarmAgent(RobotAgent):
     R + ``margin`` of its robot (default :func:`agents.cells.margin` of ``max_speed`` m/s over one
     ``report_every``), re-watched every ``report_every`` seconds by the host's hub; it needs the
     shared subscription, and every agent of a swarm the same R and cell size.
+
+    ``vector`` (default true): with the shared subscription, the host's hub runs one vectorised
+    behaviour step for all its swarm robots per control cycle (:class:`.vector.HostStep`, the same
+    behaviour on arrays); false: this robot runs its own cycle.
     """
 
     capabilities = ("send_position", STATS_SERVICE)
@@ -136,6 +141,7 @@ class SwarmAgent(RobotAgent):
         cell_size: float = 0.0,
         margin: float | None = None,
         max_speed: float = 0.5,
+        vector: bool = True,
     ):
         super().__init__(
             agent_id,
@@ -156,6 +162,9 @@ class SwarmAgent(RobotAgent):
         self.side = side
         self.shared = bool(shared)
         self.disperse_radius = float(disperse_radius)
+        if not isinstance(vector, bool):
+            raise ValueError(f"agent {agent_id}: vector {vector!r} must be true or false")
+        self.vector = vector
         for name, v in (("neighbourhood", neighbourhood), ("cell_size", cell_size), ("max_speed", max_speed)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
                 raise ValueError(f"agent {agent_id}: {name} {v!r} must be a number of metres (per second) >= 0")
@@ -278,6 +287,8 @@ class SwarmAgent(RobotAgent):
             self._hub = None
             raise
         self.configure(self.pioneer)
+        if not self.vector:
+            self.pioneer.vectorised = False
         self._hub.add_robot(self.robot, self.pioneer)  # neighbourhood: its cells are watched from now on
         self.since = time.time()
         now = clock().now()
@@ -297,6 +308,8 @@ class SwarmAgent(RobotAgent):
                 )
             elif self.shared:
                 self._hub.listen(_account_shared)
+            if self.vector and self.shared and self._hub.batch is None:
+                self._hub.batch = HostStep(lambda: clock().now())  # one step for all the host's swarm robots
         except ValueError as e:
             self._hub.detach(self)
             self._hub = None

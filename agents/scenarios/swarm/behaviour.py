@@ -63,7 +63,10 @@ class Disperse(Subsumption):
 
 class SwarmPioneer(Pioneer):
     """A :class:`rsal.robot.Pioneer` whose behaviour is :class:`Disperse`: the same cycle, with the
-    robot's heading handed to the behaviour before each step."""
+    robot's heading handed to the behaviour before each step. A host's vectorised step
+    (:class:`.vector.HostStep`) runs the cycle of many at once unless :attr:`vectorised` is false."""
+
+    vectorised = True
 
     def __init__(self, devices, **kw):
         super().__init__(devices, **kw)
