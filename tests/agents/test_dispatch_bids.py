@@ -70,7 +70,7 @@ class Robot(FleetWorker, Agent):
 
 def _bid(robot: Robot, x: float, y: float):
     task = parse_task({"id": "t1", "kind": "go_to", "args": {"x": x, "y": y}})
-    return robot._cost(robot.where(), [], task, None, None, robot.travel())
+    return robot._cost(robot.where(), [], task, robot.places_left(), None, robot.travel())
 
 
 def test_a_goal_behind_a_wall_is_costed_by_the_path_around_it(planner):
