@@ -173,7 +173,10 @@ def test_page_starts_hunt_and_prey_shows_agents_and_rerun_view_and_stops_it(proc
             mark("screenshot")
             assert shot.stat().st_size > 10_000
 
-            # Stop all: the emergency stop of every base, whatever the scenario's agents command (ground truth)
+            # Stop all: the emergency stop of every base, whatever the scenario's agents command (ground
+            # truth); the header keeps it on screen with the page scrolled down to the map
+            assert page.evaluate("window.scrollY") > 0, "the page should be scrolled to the map here"
+            assert page.locator("#estop-all").bounding_box()["y"] >= 0, "Stop all scrolled off the screen"
             with page.expect_response(lambda r: r.url.endswith("/api/estop"), timeout=30_000) as resp:
                 page.click("#estop-all")
             assert resp.value.status == 200, resp.value.text()

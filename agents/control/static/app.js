@@ -440,7 +440,21 @@ function renderWatch(w) {
 }
 
 // ------------------------------------------------------------------ polling
+// One poll at a time: a browser opens at most six connections to a host, so polls that pile up
+// behind a slow answer (a loaded machine) would queue a button's request behind them.
+let polling = false;
+
 async function poll() {
+  if (polling) return;
+  polling = true;
+  try {
+    await pollOnce();
+  } finally {
+    polling = false;
+  }
+}
+
+async function pollOnce() {
   try {
     state = await api("GET", "/api/state");
     $("#status").textContent = "";
@@ -458,7 +472,7 @@ async function poll() {
   renderWatch(state.watch);
   refreshMap(state.maps);
   draw();
-  pollTasks();
+  await pollTasks();
 }
 
 window.addEventListener("load", () => {
