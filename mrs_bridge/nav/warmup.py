@@ -1,10 +1,11 @@
 """Compile the navigation drivers' numba kernels before they are served.
 
-AMCL's likelihood field, sonar cone beam model (:mod:`mrs_bridge.nav.conebeam`) and tempering (:mod:`mrs_bridge.nav.amcl`) and Wavefront's search
-(:mod:`mrs_bridge.nav.wavefront`) are compiled by numba on first use and cached on disk. The
-``amcl`` and ``wavefront`` drivers call :func:`warm_up` in their set-up, before their devices are
-announced, so that a robot's first scan or first goal never waits for a compiler (and never holds
-up the other drivers of the same server); the project's set-up calls it once ahead of time.
+AMCL's likelihood field and tempering (:mod:`mrs_bridge.nav.amcl`), its sonar cone beam model
+(:mod:`mrs_bridge.nav.conebeam`) and Wavefront's search (:mod:`mrs_bridge.nav.wavefront`) are
+compiled by numba on first use and cached on disk. The ``amcl`` and ``wavefront`` drivers call
+:func:`warm_up` in their set-up, before their devices are announced, so that a robot's first scan
+or first goal never waits for a compiler (and never holds up the other drivers of the same
+server); the project's set-up calls it once ahead of time.
 
 :func:`warm_up` runs one filter update (laser and sonar cone) and one plan on a small room, which
 compiles every kernel for the argument types the drivers use; with a warm cache it only loads them.

@@ -85,7 +85,8 @@ def test_compiled_kernel_matches_the_marching_reference():
         cone_expected_jit(px[i], py[i], pth[i], bx, by, bang, CONE_RAYS, cm.blocked, cm.clear, RES, *ORIGIN, 5.0)
         for i in range(n)
     ])  # fmt: skip
-    ref = np.array([cone_expected_numpy(b, RES, ORIGIN, (px[i], py[i], pth[i]), bx, by, bang, CONE_RAYS, 5.0, 1e-3) for i in range(n)])
+    poses = zip(px, py, pth, strict=True)
+    ref = np.array([cone_expected_numpy(b, RES, ORIGIN, q, bx, by, bang, CONE_RAYS, 5.0, 1e-3) for q in poses])
     # The reference marches in 1 mm steps and may step over a corner the exact walk clips.
     assert (jit <= ref + 2e-3).all()
     assert np.mean(np.abs(jit - ref) <= 2e-3) >= 0.99
