@@ -165,7 +165,7 @@ def sim_config(
                     [f"odometry::{name}:position2d:0", rng, map_addr],
                     init_pose=[x, y, math.degrees(a)],
                     init_pose_var=[0.05, 0.05, math.degrees(math.radians(5) ** 2)],
-                    **profile.AMCL,
+                    **{**profile.AMCL, **({} if has_laser else profile.AMCL_SONAR)},
                 )
             )
             # The local planner's goal tolerances must be tighter than wavefront's (thesis A.3: "set this

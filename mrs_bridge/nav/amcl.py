@@ -19,9 +19,10 @@ Player's ``amcl`` parameter names, vectorised over particles and beams at once:
   ``d`` counts depth inside obstacles too: the grid's own field, 0 anywhere inside a wall, pulls
   the estimate towards poses whose beams end deep in thick walls (0.25 m off on the floor map).
   Beams carry their own origins and bearings in the robot frame, so a laser and a Pioneer sonar
-  ring use the same model; a sonar beam may be a cone (``beam_width``), scored by the best of
-  :data:`CONE_RAYS` rays across it, since the echo comes from the nearest surface anywhere in the
-  cone. A compiled kernel (numba) makes one fused pass over particles x beams.
+  ring share the code. A compiled kernel (numba) makes one fused pass over particles x beams.
+* **Measurement of sonar cones** (``beam_width`` > 0): the beam model, ch. 6.3, with the expected
+  range the least over :data:`CONE_RAYS` rays cast across the cone (:mod:`.conebeam`, which says
+  why the likelihood field is biased towards walls for cones).
 * **Distance filter** (an extension, ``laser_unmodeled_margin``; Fox, Burgard and Thrun, "Markov
   localization for mobile robots in dynamic environments", JAIR 11, 1999, sec. 4.2): while the
   belief is tight, laser readings much shorter than the map predicts at the mean pose (a robot or a
@@ -71,6 +72,7 @@ from scipy.sparse.csgraph import connected_components
 from rsal.geometry import compose_array, relative, wrap
 
 from .amclparams import AmclParams
+from .conebeam import CONE_RAYS, ConeMap, cone_beam_jit, cone_expected_jit
 from .distfilter import expected_ranges, unmodeled
 from .grid import NavGrid
 
@@ -88,7 +90,6 @@ BIN_XY = 0.5  # m, KLD histogram bin (Fox 2003; Player's amcl)
 BIN_YAW = math.radians(10.0)  # rad
 _N_YAW_BINS = int(round(2.0 * math.pi / BIN_YAW))
 _MAX_RANGE_TOL = 1e-3  # m: a reading this close to range_max is a max-range reading
-CONE_RAYS = 5  # rays across a sonar cone (Amcl.sensor's beam_width)
 
 
 # ---------------------------------------------------------------------- sampling helpers
@@ -246,6 +247,7 @@ class Amcl:
         self._fields: dict[float, np.ndarray] = {}  # log-likelihood tables per range_max
         self._surface: np.ndarray | None = None
         self._blocked: np.ndarray | None = None  # cells a beam stops at (distance filter)
+        self._cones: ConeMap | None = None  # ray-casting grids of the cone beam model
         #: readings of the last scan the distance filter left out (``laser_unmodeled_margin``)
         self.n_unmodeled = 0
         #: the power the last scan's likelihood was raised to (1: none; see ``pf_temper_ess``)
@@ -448,6 +450,36 @@ class Amcl:
             g.height,
         )
 
+    def _cone_map(self) -> ConeMap:
+        if self._cones is None:
+            g = self.grid
+            self._cones = ConeMap(~g.free, g.resolution, g.origin)
+        return self._cones
+
+    def _cone_log_likelihood(self, z, bearings, origins, rays: int, range_max: float) -> np.ndarray:
+        """Log-likelihood of a sonar scan for every particle, ``(n,)``, under the cone beam model
+        (:mod:`.conebeam`); ``bearings`` holds ``rays`` entries per reading ``z``."""
+        cm, p, q = self._cone_map(), self.params, self.particles
+        return cone_beam_jit(
+            np.ascontiguousarray(q[:, 0]),
+            np.ascontiguousarray(q[:, 1]),
+            np.ascontiguousarray(q[:, 2]),
+            np.ascontiguousarray(origins[:, 0], dtype=np.float64),
+            np.ascontiguousarray(origins[:, 1], dtype=np.float64),
+            np.ascontiguousarray(bearings, dtype=np.float64),
+            np.ascontiguousarray(z, dtype=np.float64),
+            int(rays),
+            cm.blocked,
+            cm.clear,
+            cm.resolution,
+            cm.origin[0],
+            cm.origin[1],
+            float(range_max),
+            float(p.laser_z_hit),
+            float(p.laser_z_rand),
+            float(p.laser_sigma_hit),
+        )
+
     def sensor(self, ranges, bearings, origins, range_min, range_max, *, beam_width=0.0) -> bool:
         """Apply one range scan if an update is due; returns whether it was applied.
 
@@ -455,8 +487,9 @@ class Amcl:
         each beam in the robot frame (a laser: one origin; a sonar ring: one per transducer).
         ``range_min`` and ``range_max`` are scalars or per-beam arrays; readings at ``range_max`` (no
         echo), below ``range_min`` or not finite are skipped. ``beam_width`` (rad, scalar or per
-        beam) is a sonar's cone: the echo came from the nearest surface anywhere in it, so the beam
-        scores the best of :data:`CONE_RAYS` rays spread across the cone; 0 is a laser ray.
+        beam) is a sonar's cone: the echo came from the nearest surface anywhere in it, so the
+        expected range is the least of :data:`CONE_RAYS` rays cast across the cone (the beam
+        model, :mod:`.conebeam`); 0 is a laser ray, scored by the likelihood field.
         """
         z = np.asarray(ranges, dtype=np.float64).reshape(-1)
         b = np.asarray(bearings, dtype=np.float64).reshape(-1)
@@ -474,7 +507,12 @@ class Amcl:
             return False
         self._move()  # motion since the update became due
         self._due = False
-        ok = np.isfinite(z) & (z >= rmin) & (z < rmax - _MAX_RANGE_TOL) & np.isfinite(b) & np.isfinite(o).all(axis=1)
+        # A sonar cone's max-range reading is evidence too (no surface within range anywhere in
+        # the cone): skipped, poses nearer a wall than the robot would go unpunished for the echoes
+        # they predict. The beam model scores it as a reading of range_max.
+        short = z < rmax - _MAX_RANGE_TOL
+        ok = np.isfinite(z) & (z >= rmin) & (short | (width > 0.0)) & np.isfinite(b) & np.isfinite(o).all(axis=1)
+        z = np.where(short, z, rmax)
         idx = np.flatnonzero(ok)
         if idx.size == 0:
             return False
@@ -484,16 +522,21 @@ class Amcl:
         zi, bi, oi, wi = z[idx], b[idx], o[idx], width[idx]
         rays = CONE_RAYS if np.any(wi > 0.0) else 1
         margin = self.params.laser_unmodeled_margin
-        if margin > 0.0 and rays == 1:  # a laser: leave out readings cut short by what the map lacks
-            keep = ~self._unmodeled(zi, bi, oi, float(rmax[idx].max()), margin)
-            self.n_unmodeled = int(keep.size - keep.sum())
-            idx, zi, bi, oi, wi = idx[keep], zi[keep], bi[keep], oi[keep], wi[keep]
-        if rays > 1:  # beam-major: the rays of beam j are entries j*rays .. j*rays+rays-1
+        if rays > 1:  # sonar cones: rays beam-major (beam j: j*rays .. j*rays+rays-1)
             bi = (bi[:, None] + wi[:, None] * np.linspace(-0.5, 0.5, rays)).reshape(-1)
-            zi, oi = np.repeat(zi, rays), np.repeat(oi, rays, axis=0)
-        lx = oi[:, 0] + zi * np.cos(bi)
-        ly = oi[:, 1] + zi * np.sin(bi)
-        loglik = self._log_likelihood(lx, ly, rays, float(rmax[idx].max()))
+        if margin > 0.0:  # leave out readings cut short by what the map lacks
+            keep = ~self._unmodeled(zi, bi, oi, rays, float(rmax[idx].max()), margin)
+            self.n_unmodeled = int(keep.size - keep.sum())
+            idx, zi, oi = idx[keep], zi[keep], oi[keep]
+            bi = bi.reshape(-1, rays)[keep].reshape(-1)
+            if idx.size == 0:
+                return False
+        if rays > 1:  # sonar cones: the beam model
+            loglik = self._cone_log_likelihood(zi, bi, oi, rays, float(rmax[idx].max()))
+        else:
+            lx = oi[:, 0] + zi * np.cos(bi)
+            ly = oi[:, 1] + zi * np.sin(bi)
+            loglik = self._log_likelihood(lx, ly, rays, float(rmax[idx].max()))
         self._weigh(loglik, idx.size)
         self.n_updates += 1
         self._since_resample += 1
@@ -502,12 +545,23 @@ class Amcl:
             self._since_resample = 0
         return True
 
-    def _unmodeled(self, z, bearings, origins, range_max: float, margin: float) -> np.ndarray:
+    def _unmodeled(self, z, bearings, origins, rays: int, range_max: float, margin: float) -> np.ndarray:
         """The distance filter (:mod:`mrs_bridge.nav.distfilter`) at the weighted mean pose, while
-        the belief's position standard deviation is at most ``margin``; else nothing is left out."""
+        the belief's position standard deviation is at most ``margin``; else nothing is left out.
+        A sonar cone (``rays`` > 1 bearings per reading) predicts the least range across it."""
         mean, cov = _mean_cov(*self._weighed())
         if math.sqrt(max(float(np.linalg.eigvalsh(cov[:2, :2])[-1]), 0.0)) > margin:
             return np.zeros(z.shape[0], dtype=bool)
+        if rays > 1:
+            cm = self._cone_map()
+            exp = cone_expected_jit(
+                float(mean[0]), float(mean[1]), float(mean[2]),
+                np.ascontiguousarray(origins[:, 0], dtype=np.float64),
+                np.ascontiguousarray(origins[:, 1], dtype=np.float64),
+                np.ascontiguousarray(bearings, dtype=np.float64),
+                int(rays), cm.blocked, cm.clear, cm.resolution, cm.origin[0], cm.origin[1], float(range_max),
+            )  # fmt: skip
+            return unmodeled(z, exp, margin)
         if self._blocked is None:
             self._blocked = ~self.grid.free
         g = self.grid

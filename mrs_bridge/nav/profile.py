@@ -9,7 +9,7 @@ the project's maps otherwise. Units are the configuration file's: metres, **degr
 
 from __future__ import annotations
 
-__all__ = ["AMCL", "WAVEFRONT", "LOCAL", "LOCAL_PLANNERS"]
+__all__ = ["AMCL", "AMCL_SONAR", "WAVEFRONT", "LOCAL", "LOCAL_PLANNERS"]
 
 #: amcl filter size and sensor model (the initial pose is the robot's; see sim_config). Recovery by
 #: random particles is off: other robots and people, which are not on the map, lower the scan's fit
@@ -40,6 +40,10 @@ AMCL: dict = {
     "recover_alpha_slow": 0.0,
     "recover_alpha_fast": 0.0,
 }
+#: what a robot localizing on its sonar ring changes in :data:`AMCL`: its readings are scored by the
+#: cone beam model (nav.conebeam), whose predicted range is exact to a cell, and the transducers'
+#: noise is 2 cm: a hit's standard deviation of 0.1 m, not the likelihood field's 0.2
+AMCL_SONAR: dict = {"laser_sigma_hit": 0.1}
 #: wavefront: clearance beyond the robot's radius and the global tolerances
 WAVEFRONT: dict = {"safety_dist": 0.15, "distance_epsilon": 0.4, "angle_epsilon": 10.0}
 #: local planners' goal tolerances, tighter than wavefront's

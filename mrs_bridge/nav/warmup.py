@@ -1,10 +1,11 @@
 """Compile the navigation drivers' numba kernels before they are served.
 
-AMCL's likelihood field and tempering (:mod:`mrs_bridge.nav.amcl`) and Wavefront's search
-(:mod:`mrs_bridge.nav.wavefront`) are compiled by numba on first use and cached on disk. The
-``amcl`` and ``wavefront`` drivers call :func:`warm_up` in their set-up, before their devices are
-announced, so that a robot's first scan or first goal never waits for a compiler (and never holds
-up the other drivers of the same server); the project's set-up calls it once ahead of time.
+AMCL's likelihood field and tempering (:mod:`mrs_bridge.nav.amcl`), its sonar cone beam model
+(:mod:`mrs_bridge.nav.conebeam`) and Wavefront's search (:mod:`mrs_bridge.nav.wavefront`) are
+compiled by numba on first use and cached on disk. The ``amcl`` and ``wavefront`` drivers call
+:func:`warm_up` in their set-up, before their devices are announced, so that a robot's first scan
+or first goal never waits for a compiler (and never holds up the other drivers of the same
+server); the project's set-up calls it once ahead of time.
 
 :func:`warm_up` runs one filter update (laser and sonar cone) and one plan on a small room, which
 compiles every kernel for the argument types the drivers use; with a warm cache it only loads them.
@@ -21,11 +22,13 @@ __all__ = ["kernels", "warm_up"]
 
 def kernels() -> list:
     """The navigation's compiled functions (numba dispatchers)."""
-    from . import amcl, wavefront
+    from . import amcl, conebeam, wavefront
 
     return [
         amcl._ess_fraction,
         amcl.likelihood_field_jit,
+        conebeam.cone_beam_jit,
+        conebeam.cone_expected_jit,
         wavefront._search,
         wavefront._trace,
         wavefront._visible,
@@ -44,7 +47,7 @@ def warm_up() -> None:
     occ[:2, :] = occ[-2:, :] = occ[:, :2] = occ[:, -2:] = True
     occ[30:50, 38:42] = True
     grid = NavGrid.from_occupancy(occ, 0.05, (0.0, 0.0))
-    pf = Amcl(grid, AmclParams(pf_min_samples=50, pf_max_samples=200))
+    pf = Amcl(grid, AmclParams(pf_min_samples=50, pf_max_samples=200, laser_unmodeled_margin=0.5))
     pf.init_pose((1.0, 1.0, 0.0), np.diag([0.01, 0.01, 0.01]))
     pf.odometry((0.0, 0.0, 0.0))
     bearings = np.linspace(-math.pi / 2, math.pi / 2, 31)

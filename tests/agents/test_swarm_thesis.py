@@ -178,10 +178,10 @@ def test_ten_pioneer_3ats_with_full_stacks_swarm_and_are_judged_on_ground_truth(
     # The verdict's first half: no robot touched a robot or a wall during the judged run (counted
     # by the simulator in every physics step).
     assert mon.contact_counts() == (0, 0), f"contacts during the run: {v.text}"
-    # Its second half, 95 % of robot-time within 0.5 m, is not met yet: AMCL on a sonar ring that
-    # sees only other robots follows its odometry's drift until the robot reaches a wall; measured
-    # 89-94 % over 30 s (docs/scenarios/swarm.md). Asserted here: most robot-time is localized.
+    # Its second half: AMCL on the sonar ring keeps the localization error under 0.5 m for 95 % of
+    # robot-time (issue's verdict; docs/scenarios/swarm.md), judged against the true poses.
     assert mon.samples >= DURATION / mon.sample_every * 0.8
     assert not np.isnan(errors[:N]).any(), "the monitor judges from the first sample with every estimate"
     assert np.median(errors[np.isfinite(errors)]) < 0.3, f"median localization error {np.nanmedian(errors):.2f} m"
-    assert v.ok == (share >= 0.95 and contacts["robot_robot"] == 0 and contacts["robot_wall"] == 0 and v.ok)
+    assert share >= 0.95, f"localization within 0.5 m for {100 * share:.1f} % of robot-time: {v.text}"
+    assert v.ok, v.text

@@ -114,9 +114,13 @@ class ThesisPioneer(SwarmPioneer):
         return ListSectors([min(a, b) for a, b in zip(sonar, d, strict=True)])
 
     #: a localize pose farther than this (m) from where the odometry carried the last one within
-    #: ``check_every`` s is a jump of the filter, not a correction: it is re-seeded (:meth:`guard`)
-    jump_limit = 0.3
-    jump_yaw = 0.35  # rad, the same for the heading
+    #: ``check_every`` s is a jump of the filter, not a correction: it is re-seeded (:meth:`guard`).
+    #: A robot that drifted in open space corrects by up to ~0.6 m in a second when a wall comes
+    #: into range; with 0.3 m / 0.35 rad the guard undid those corrections and pinned the estimate
+    #: to the odometry's drift (ten robots, 30 s: 93.9 % of robot-time within 0.5 m; 97.4 % with
+    #: these limits, 96.4 % with no guard at all)
+    jump_limit = 1.0
+    jump_yaw = 0.6  # rad, the same for the heading
     check_every = 1.0  # s
     reseed_cov = (0.01, 0.0, 0.0, 0.0, 0.01, 0.0, 0.0, 0.0, 0.005)  # m^2, rad^2: 0.1 m and 4 deg
 
