@@ -27,8 +27,6 @@ Usage: ``python benchmarks/bench_sim_cpu.py [--world maps/swarm1000.world] [--si
 from __future__ import annotations
 
 import argparse
-import faulthandler
-import os
 import math
 import subprocess
 import sys
@@ -91,7 +89,7 @@ def instrument(world, server, meter: Meter) -> None:
     world.drives.accelerate = meter.wrap("motion", world.drives.accelerate)
     world.drives.odometry = meter.wrap("motion", world.drives.odometry)
     world.batteries.step = meter.wrap("energy", world.batteries.step)
-    for name, s in world.sensors.items():
+    for s in world.sensors.values():
         s.step = meter.wrap("sensors", s.step)
     # publishing: every sim driver's on_step (after the server looked the drivers up), and the
     # server's publish (encode + put) inside it
@@ -116,8 +114,6 @@ def main() -> int:
     ap.add_argument("--profile", type=int, default=0, metavar="N", help="print cProfile's top N functions")
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args()
-    if os.environ.get("BENCH_DUMP"):
-        faulthandler.dump_traceback_later(float(os.environ["BENCH_DUMP"]), exit=True)
 
     import numpy as np
 
@@ -140,9 +136,7 @@ def main() -> int:
     cfg = sim_config(world, source=str(args.world))
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
-    session = open_session(
-        TransportArgs(mode="peer", listen=[ep]), server=True
-    )
+    session = open_session(TransportArgs(mode="peer", listen=[ep]), server=True)
     sub = None
     if not args.no_listener:
         sub = subprocess.Popen(
@@ -164,6 +158,7 @@ def main() -> int:
     run_until(args.warmup)
     if not args.no_phases:
         instrument(world, server, meter)
+
     def mark() -> str:
         sub.stdin.write("mark\n")
         sub.stdin.flush()

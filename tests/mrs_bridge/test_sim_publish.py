@@ -58,7 +58,9 @@ class _Reference:
             if a.interface == "position2d":
                 pose = w.get_pose(d.model) if d.gps else w.odometry(d.model)
                 g = d.guard
-                out.append((str(a), encode(Position2dData(t, pose, (v, 0.0, om), w.stalled(d.model), g.timed_out, g.estop))))
+                out.append(
+                    (str(a), encode(Position2dData(t, pose, (v, 0.0, om), w.stalled(d.model), g.timed_out, g.estop)))
+                )
             elif a.interface in ("ranger", "sonar", "laser"):
                 r = w.ranger(d.model, d._src[a])
                 if r is None or self.last_scan.get(a) == r.time:
