@@ -29,6 +29,12 @@ class LowBattery:
         self.hysteresis = float(hysteresis)
         self.low = False
 
+    def changes(self, percent: float) -> bool:
+        """Whether :meth:`update` with this reading would return an event (and flip the latch)."""
+        if self.low:
+            return percent >= min(100.0, self.threshold + self.hysteresis)
+        return percent < self.threshold
+
     def update(self, t: float, percent: float, volts: float) -> dict | None:
         """Feed one reading; returns the event message to publish, or None."""
         if not self.low and percent < self.threshold:

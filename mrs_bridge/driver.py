@@ -151,6 +151,10 @@ class Driver:
     def publish(self, addr: DeviceAddr, msg) -> None:
         self.server.publish(addr, msg)
 
+    def publish_each(self, addrs, msg) -> None:
+        """Publish ``msg`` on each device of ``addrs``, encoded once (one scan on two devices)."""
+        self.server.publish_each(addrs, msg)
+
     def send(self, addr: DeviceAddr, msg) -> None:
         """Command a (required) device: put ``msg`` on its ``cmd`` key."""
         self.server.send(addr, msg)

@@ -276,6 +276,10 @@ class FakeServer:
     def publish(self, addr, msg) -> None:
         self.published.append((str(addr), msg))
 
+    def publish_each(self, addrs, msg) -> None:
+        for addr in addrs:
+            self.published.append((str(addr), msg))
+
     def publish_event(self, addr, msg) -> None:
         self.events.append(msg)
 

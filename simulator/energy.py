@@ -175,6 +175,11 @@ class Batteries:
         self.flat = self.flat + np.where(self.empty, dt, 0.0)
         self.charged = self.charged + np.where(self.charging, self.energy - before, 0.0)
 
+    def fraction(self, row: int) -> float:
+        """:meth:`state`'s ``fraction`` alone (the sim driver reads it every step)."""
+        cap = float(self.capacity[row])
+        return float(self.energy[row]) / cap if self.has[row] and cap > 0 else 1.0
+
     def state(self, row: int) -> BatteryState:
         cap = float(self.capacity[row])
         e = float(self.energy[row])

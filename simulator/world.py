@@ -309,6 +309,11 @@ class World:
         """A robot's battery after the last step (:mod:`simulator.energy`)."""
         return self.batteries.state(self._robot(name).row)
 
+    def battery_fraction(self, name: str) -> float:
+        """A robot's charge as a fraction of its capacity (1.0 without a battery model): what
+        :meth:`battery` reports as ``fraction``, without building the whole state."""
+        return self.batteries.fraction(self._robot(name).row)
+
     def set_battery(self, name: str, fraction: float) -> None:
         """Set a robot's charge to ``fraction`` of its capacity (0..1)."""
         if not math.isfinite(fraction):

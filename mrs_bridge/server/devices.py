@@ -122,6 +122,24 @@ class _Devices:
         hit[1](pack() if pack is not None else encode(msg))
         self.stats["published"] += 1
 
+    def publish_each(self, addrs, msg) -> None:
+        """Publish one message on several devices, encoded once: a sonar ring's scan on
+        ``ranger:0`` and its alias ``sonar:0`` (the same bytes as :meth:`publish` on each)."""
+        payload = None
+        cache = self._pub_cache
+        for addr in addrs:
+            hit = cache.get(id(addr))
+            if hit is None or hit[0] is not addr:
+                dev = self.devices.get(addr.without_key() if addr.key else addr)
+                if dev is None or dev.pub is None:
+                    continue
+                hit = cache[id(addr)] = (addr, dev.pub.put)
+            if payload is None:
+                pack = getattr(msg, "to_msgpack", None)
+                payload = pack() if pack is not None else encode(msg)
+            hit[1](payload)
+            self.stats["published"] += 1
+
     def send(self, addr: DeviceAddr, msg) -> None:
         """Put a command on another device's ``cmd`` key (a required device, local or remote)."""
         self.session.put(keys.cmd_key(addr.without_key()), encode(msg))
