@@ -240,8 +240,46 @@ class FleetWorker:
     model), :meth:`charging` and :meth:`perform` (do one task, return ``""`` or why not); it calls
     :meth:`start_worker` from ``created()`` and :meth:`report_status` from its steps."""
 
-    def init_worker(self, *, speed: float, threshold: float, target: float, status_every: float, agent_id: str) -> None:
+    speed_default = 0.4  # m/s, the agent class's ``speed`` when its scenario gives none
+    charge_timeout_default = 36000.0  # s, likewise for ``charge_timeout``
+
+    def __init__(
+        self,
+        agent_id: str,
+        *,
+        speed: float | None = None,
+        threshold: float = 0.2,
+        target: float = 0.9,
+        status_every: float = 1.0,
+        charge_timeout: float | None = None,
+        **kw,
+    ):
+        """The worker's arguments (class docstring of the agent class; ``speed`` and
+        ``charge_timeout`` default to the class's ``speed_default``/``charge_timeout_default``);
+        the rest go on to the robot agent's constructor, next in the MRO."""
+        super().__init__(agent_id, **kw)  # type: ignore[call-arg]
+        self.init_worker(
+            speed=self.speed_default if speed is None else speed,
+            threshold=threshold,
+            target=target,
+            status_every=status_every,
+            charge_timeout=self.charge_timeout_default if charge_timeout is None else charge_timeout,
+            agent_id=agent_id,
+        )
+
+    def init_worker(
+        self,
+        *,
+        speed: float,
+        threshold: float,
+        target: float,
+        status_every: float,
+        agent_id: str,
+        charge_timeout: float = 36000.0,
+    ) -> None:
+        """Set up the worker's state; for classes that call their base constructors themselves."""
         self.speed = number_arg(agent_id, "speed", speed, 0.0)
+        self.charge_timeout = number_arg(agent_id, "charge_timeout", charge_timeout, 0.0)
         self.threshold, self.target = float(threshold), float(target)
         self.status_every = number_arg(agent_id, "status_every", status_every, 0.0)
         self.queue: list[Task] = []  # awarded, not started
@@ -467,20 +505,8 @@ class FleetAgent(FleetWorker, NavAgent):
 
     capabilities = ("send_position", "new_goal", "fleet")
 
-    def __init__(
-        self,
-        agent_id: str,
-        *,
-        speed: float = 0.4,
-        threshold: float = 0.2,
-        target: float = 0.9,
-        status_every: float = 1.0,
-        charge_timeout: float = 36000.0,
-        **kw,
-    ):
-        NavAgent.__init__(self, agent_id, **kw)
-        self.init_worker(speed=speed, threshold=threshold, target=target, status_every=status_every, agent_id=agent_id)
-        self.charge_timeout = number_arg(agent_id, "charge_timeout", charge_timeout, 0.0)
+    def __init__(self, agent_id: str, **kw):
+        super().__init__(agent_id, **kw)  # FleetWorker's arguments, then NavAgent's
         self._path: PathTravel | None = None
         self._said_straight = False
 

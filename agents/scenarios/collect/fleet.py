@@ -24,7 +24,6 @@ from rsal.clock import clock
 from rsal.data import Position
 
 from .collector import CollectAgent
-from .messages import check_number as _number
 
 __all__ = ["FleetCollectAgent"]
 
@@ -42,20 +41,8 @@ class FleetCollectAgent(FleetWorker, CollectAgent):
 
     capabilities = ("send_position", "collect", "fleet")
 
-    def __init__(
-        self,
-        agent_id: str,
-        *,
-        speed: float = 0.3,
-        threshold: float = 0.2,
-        target: float = 0.9,
-        status_every: float = 1.0,
-        charge_timeout: float = 3600.0,
-        **kw,
-    ):
-        CollectAgent.__init__(self, agent_id, **kw)
-        self.init_worker(speed=speed, threshold=threshold, target=target, status_every=status_every, agent_id=agent_id)
-        self.charge_timeout = _number(agent_id, "charge_timeout", charge_timeout, 0.0, 86400.0)
+    speed_default = 0.3
+    charge_timeout_default = 3600.0
 
     async def created(self) -> None:
         await CollectAgent.created(self)
