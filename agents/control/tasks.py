@@ -168,16 +168,16 @@ class TasksApi:
                 "('rsal agent DispatcherAgent') on this fabric",
                 504,
             )
-        if row.state == TaskState.REFUSED:
-            raise ApiError(f"refused ({row.reason}): {row.text}")
+        if row.last.state == TaskState.REFUSED:
+            raise ApiError(f"refused ({row.last.reason}): {row.last.text}")
         return row.to_dict(time.monotonic())
 
     def cancel_task(self, task_id: str) -> dict:
         row = self.task_board.get(task_id)
         if row is None:
             raise ApiError(f"no task {task_id!r} in the list; see GET /api/tasks", 404)
-        if TaskState(row.state).final:
-            raise ApiError(f"task {task_id} already ended ({row.state}); nothing to cancel")
+        if TaskState(row.last.state).final:
+            raise ApiError(f"task {task_id} already ended ({row.last.state}); nothing to cancel")
         self._send(cancel_request(task_id))
         row = self.task_board.wait(task_id, {s.value for s in TaskState if s.final}, ANSWER_WAIT)
         if row is None:

@@ -12,6 +12,7 @@ and :meth:`TaskBoard.wait` lets a caller wait (with a deadline) for a task to re
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import uuid
@@ -69,34 +70,24 @@ def parse_route(text: str) -> list[list[float]]:
 
 @dataclass
 class TaskRow:
-    """A task as a person sees it: its latest ``task_state`` and the ``states`` it went through."""
+    """A task as a person sees it: ``last``, its latest ``task_state`` (an empty field keeps the
+    value an earlier one gave), the ``states`` it went through, when it was first seen and when it
+    ended (``inf`` while it lives)."""
 
-    id: str
-    kind: str
-    state: str
-    robot: str = ""
-    reason: str = ""
-    text: str = ""
-    requester: str = ""
-    places: tuple = ()
+    last: TaskStatus
     first_seen: float = 0.0
     ended_at: float = math.inf
     states: list[str] = field(default_factory=list)
 
     def to_dict(self, now: float) -> dict:
-        return {
-            "id": self.id,
-            "kind": self.kind,
-            "state": self.state,
-            "robot": self.robot,
-            "reason": self.reason,
-            "text": self.text,
-            "requester": self.requester,
-            "places": [list(p) for p in self.places],
-            "age": round(max(0.0, now - self.first_seen), 1),
-            "states": list(self.states),
-            "final": TaskState(self.state).final,
-        }
+        d = self.last.to_dict()
+        d["id"] = d.pop("task_id")
+        d.update(
+            age=round(max(0.0, now - self.first_seen), 1),
+            states=list(self.states),
+            final=TaskState(self.last.state).final,
+        )
+        return d
 
 
 class TaskBoard:
@@ -119,17 +110,20 @@ class TaskBoard:
             if row is None and not st.kind:
                 return None  # a refused cancel of a task nobody knows: no task to list
             if row is None:
-                row = self._rows[st.task_id] = TaskRow(st.task_id, st.kind, st.state, first_seen=now)
+                row = self._rows[st.task_id] = TaskRow(st, first_seen=now)
             if not row.states or row.states[-1] != st.state:
                 row.states.append(st.state)
             final = TaskState(st.state).final
-            # an ended task keeps the robot it was last on (a cancel or re-bid may clear it)
-            row.robot = st.robot or (row.robot if final else "")
-            row.state, row.reason = st.state, st.reason
-            row.kind = st.kind or row.kind
-            row.text = st.text or row.text
-            row.requester = st.requester or row.requester
-            row.places = st.places or row.places
+            was = row.last
+            row.last = dataclasses.replace(
+                st,
+                # an ended task keeps the robot it was last on (a cancel or re-bid may clear it)
+                robot=st.robot or (was.robot if final else ""),
+                kind=st.kind or was.kind,
+                text=st.text or was.text,
+                requester=st.requester or was.requester,
+                places=st.places or was.places,
+            )
             row.ended_at = (now if row.ended_at == math.inf else row.ended_at) if final else math.inf
             self._cond.notify_all()
             return row
@@ -139,7 +133,7 @@ class TaskBoard:
         with self._cond:
             for tid in [t for t, r in self._rows.items() if now - r.ended_at > self.hold]:
                 del self._rows[tid]
-            return [r.to_dict(now) for r in sorted(self._rows.values(), key=lambda r: (r.first_seen, r.id))]
+            return [r.to_dict(now) for r in sorted(self._rows.values(), key=lambda r: (r.first_seen, r.last.task_id))]
 
     def get(self, task_id: str) -> TaskRow | None:
         with self._cond:
@@ -154,7 +148,7 @@ class TaskBoard:
         with self._cond:
             while True:
                 row = self._rows.get(task_id)
-                if row is not None and (states is None or row.state in states):
+                if row is not None and (states is None or row.last.state in states):
                     return row
                 left = deadline - time.monotonic()
                 if left <= 0:

@@ -64,7 +64,7 @@ def test_statuses_of_no_task_are_not_listed_and_wait_has_a_deadline():
     assert b.rows(0.0) == []
     assert b.wait("t1", None, 0.05) is None
     b.apply(_st("t1", "bidding"), 0.0)
-    assert b.wait("t1", {"bidding"}, 0.05).state == "bidding"
+    assert b.wait("t1", {"bidding"}, 0.05).last.state == "bidding"
     with pytest.raises(ValueError, match="hold"):
         TaskBoard(hold=-1)
 
