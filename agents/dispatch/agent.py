@@ -174,21 +174,10 @@ class DispatcherAgent(Agent):
             fab.close()
 
     def _load_map(self):  # a worker thread
-        from rsal.client import Fabric
+        from ..maps import fetch_map
 
-        fab = Fabric(self._require_host().session, own_session=False)
-        node = fab.node(self.map_addr)
-        try:
-            node.wait_for(self.map_addr, 1, self.startup_timeout)
-            return node.device(self.map_addr).get_map(timeout=10.0)
-        except TimeoutError:
-            raise TimeoutError(
-                f"{self.id}: no map device {self.map_addr} within {self.startup_timeout:g} s "
-                "(is 'rsal sim' running with its floorplan, or leave 'map' out)"
-            ) from None
-        finally:
-            node.close()
-            fab.close()
+        hint = "is 'rsal sim' running with its floorplan, or leave 'map' out"
+        return fetch_map(self._require_host().session, self.map_addr, self.startup_timeout, self.id, hint)
 
     def _send(self, body) -> None:
         if self.host is not None and self.state == "running":

@@ -40,10 +40,10 @@ from dataclasses import dataclass
 import numpy as np
 import zenoh
 
+from agents.maps import fetch_map
 from agents.registry import agent_class
 from agents.runtime import Agent
 from agents.services import Message, NewGoal, Outcome, SendPosition, match
-from rsal.client import Fabric
 from rsal.clock import clock, wait_for
 from rsal.data import Board, BoardObject, Position
 from rsal.msgs import MapData
@@ -248,7 +248,6 @@ class DispersionAgent(Agent):
         self.history: list[tuple[str, int]] = []  # every (agent, target) sent, in order
         self.verdict: Outcome | None = None
         self.grid: MapData | None = None
-        self._fabric: Fabric | None = None
         self._live_sub = None
         self._changed: asyncio.Event | None = None
         self._resent: dict[str, int] = {}  # agent -> failures answered with a resend
@@ -305,18 +304,8 @@ class DispersionAgent(Agent):
 
     # ------------------------------------------------------------------ planning
     def _load_map(self) -> MapData:  # a worker thread
-        self._fabric = Fabric(self._require_host().session, own_session=False)
-        node = self._fabric.node(self.map_addr)
-        try:
-            node.wait_for(self.map_addr, 1, self.startup_timeout)
-            return node.device(self.map_addr).get_map(timeout=10.0)
-        except TimeoutError:
-            raise TimeoutError(
-                f"{self.id}: no map device {self.map_addr} within {self.startup_timeout:g} s "
-                "(is 'rsal sim' running with its floorplan, or set 'map')"
-            ) from None
-        finally:
-            node.close()
+        hint = "is 'rsal sim' running with its floorplan, or set 'map'"
+        return fetch_map(self._require_host().session, self.map_addr, self.startup_timeout, self.id, hint)
 
     async def load_map(self) -> MapData:
         """The map the targets are computed on (override to supply one)."""
@@ -448,5 +437,3 @@ class DispersionAgent(Agent):
                 self._live_sub.undeclare()
             except Exception:
                 pass
-        if self._fabric is not None:
-            self._fabric.close()
