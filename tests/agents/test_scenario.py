@@ -115,53 +115,13 @@ def test_set_overrides_global_arguments(tmp_path):
             parse_set([bad])
 
 
-def test_unknown_keys_suggest_the_near_one(tmp_path):
-    msg = error(tmp_path, GOOD.replace("agent_types:", "agent_type:"))
-    assert "agent_type: unknown key; did you mean 'agent_types'?" in msg
-    msg = error(tmp_path, GOOD.replace("{type: prey, robot: r0}", "{type: prey, robto: r0}"))
-    assert "applications.virtual.agents[0].robto: unknown key; did you mean 'robot'?" in msg
-    msg = error(tmp_path, GOOD.replace("end: {duration: 10}", "end: {duraton: 10}"))
-    assert "applications.plain.end.duraton" in msg and "'duration'" in msg
-    msg = error(tmp_path, GOOD.replace("nav: vfh", "nva: vfh"))
-    assert "simulator.nva: unknown key; did you mean 'nav'?" in msg
-
-
-def test_missing_required_keys(tmp_path):
-    assert "the key 'scenario' is missing" in error(tmp_path, GOOD.replace("scenario: demo", ""))
-    msg = error(tmp_path, GOOD.replace("    end: {duration: 10}\n", ""))
-    assert "applications.plain: the key 'end' is missing; add it" in msg
+def test_an_empty_file_and_files_that_do_not_parse(tmp_path):
     assert "the file is empty" in error(tmp_path, "")
-
-
-def test_wrong_types(tmp_path):
-    msg = error(tmp_path, GOOD.replace("count: 3", "count: three"))
-    assert "agents[1].count: must be a whole number, not the string 'three'" in msg
-    msg = error(tmp_path, GOOD.replace("timeout: 60", "timeout: soon"))
-    assert "end.timeout: must be a number" in msg
-    msg = error(tmp_path, GOOD.replace("speedup: 2", "speedup: -1"))
-    assert "simulator.speedup: must be a positive number" in msg
     assert "applications: must be a non-empty map" in error(
         tmp_path, "scenario: x\nagent_types: {a: B}\napplications: []"
     )
-    msg = error(tmp_path, GOOD.replace("nav: vfh", "nav: astar"))
-    assert "unknown local planner 'astar'; use one of vfh, nd, snd" in msg
     assert "not valid YAML" in error(tmp_path, "scenario: [x\n")
     assert "not valid TOML" in error(tmp_path, "scenario = \n", "s.toml")
-
-
-def test_unknown_agent_type(tmp_path):
-    msg = error(tmp_path, GOOD.replace("{type: prey, robot: r0}", "{type: pray, robot: r0}"))
-    assert "agents[0].type: unknown agent type 'pray'; did you mean 'prey'?" in msg
-
-
-def test_duplicate_agent_ids(tmp_path):
-    msg = error(tmp_path, GOOD.replace("{type: reporter}", "{type: reporter, id: hunter1}"))
-    assert "agent id 'hunter1' is used twice (also by applications.virtual.agents[1])" in msg
-    msg = error(tmp_path, GOOD.replace('id: "hunter{i}"', "id: hunter"))
-    assert "3 agents cannot share id 'hunter'" in msg
-    msg = error(tmp_path, GOOD.replace('robot: "r{i}"', "robot: r1"))
-    assert "3 agents cannot share robot 'r1'" in msg
-    assert "one key chunk" in error(tmp_path, GOOD.replace("id: rep}", "id: a/b}"))
 
 
 def test_missing_files_are_named_relative_to_the_scenario(tmp_path):
@@ -174,21 +134,6 @@ def test_missing_files_are_named_relative_to_the_scenario(tmp_path):
     assert sc.applications["plain"].servers == ((tmp_path / "r0.toml").resolve(),)
     with pytest.raises(ScenarioError, match="cannot read the scenario file"):
         load_scenario(tmp_path / "absent.yaml")
-
-
-def test_end_needs_event_or_duration_and_a_count_of_at_least_one(tmp_path):
-    msg = error(tmp_path, GOOD.replace("end: {duration: 10}", "end: {timeout: 10}"))
-    assert "applications.plain.end: needs 'event' (with 'count') or 'duration'" in msg
-    msg = error(tmp_path, GOOD.replace("count: 2, timeout: 60", "count: 0, timeout: 60"))
-    assert "applications.virtual.end.count: must be at least 1, not 0" in msg
-    msg = error(tmp_path, GOOD.replace("count: 3,", "count: 0,"))
-    assert "agents[1].count: must be at least 1" in msg
-    msg = error(tmp_path, GOOD.replace("end: {duration: 10}", "end: {duration: 10, event: caught}"))
-    assert "either 'event' (with 'count') or 'duration', not both" in msg
-    msg = error(tmp_path, GOOD.replace("end: {duration: 10}", "end: {duration: 10, timeout: 5}"))
-    assert "end.timeout: 5 s must be longer than the duration 10 s" in msg
-    msg = error(tmp_path, GOOD.replace("end: {duration: 10}", "end: {duration: 10, count: 2}"))
-    assert "end.count: counts outcomes of an 'event'" in msg
 
 
 def test_check_classes_resolves_classes_and_arguments(tmp_path):
@@ -303,23 +248,6 @@ def test_a_rehearse_section_names_the_real_world_and_the_robot_it_waits_for(tmp_
     assert found.rehearse.robot == "c1" and found.rehearse.world.name == "mixed_real_collect.world"
 
 
-def test_rehearse_section_mistakes_are_one_line(tmp_path):
-    msg = error(tmp_path, REHEARSED.replace("robot: r0, nav", "robt: r0, nav"))
-    assert "applications.mixed.rehearse.robt: unknown key; did you mean 'robot'?" in msg
-    msg = error(tmp_path, REHEARSED.replace("robot: r0, nav", "nav"))
-    assert "applications.mixed.rehearse: the key 'robot' is missing; add it" in msg
-    msg = error(tmp_path, REHEARSED.replace("laser: UTM-30LX", "laser: UTM-30"))
-    assert "applications.mixed.rehearse.laser: unknown laser 'UTM-30'; did you mean 'UTM-30LX'?" in msg
-    msg = error(tmp_path, REHEARSED.replace("laser: UTM-30LX", "node: sim"))
-    assert "rehearse.node: 'sim' is the virtual simulator's node; name the real world's another" in msg
-    msg = error(tmp_path, REHEARSED.replace("robot: r0", "robot: r/0"))
-    assert "rehearse.robot: 'r/0' is no node name" in msg
-    msg = error(tmp_path, REHEARSED.replace("{world: WORLD}", "{world: WORLD, speedup: 3}"))
-    assert "applications.mixed.simulator.speedup: the rehearsed real world runs in real time" in msg
-    msg = error(tmp_path, REHEARSED.replace("rehearse: {world: WORLD,", "rehearse: {world: nowhere.world,"))
-    assert "rehearse.world: file 'nowhere.world' does not exist" in msg
-
-
 def test_hosts_spreads_a_count_over_that_many_host_groups_in_blocks(tmp_path):
     sc = load_scenario(write(tmp_path, GOOD.replace("host: hunters}", "host: hunters, hosts: 2}")))
     app = sc.applications["virtual"]
@@ -332,16 +260,182 @@ def test_hosts_spreads_a_count_over_that_many_host_groups_in_blocks(tmp_path):
     assert {a.host for a in one.applications["virtual"].agents[1:4]} == {"hunters"}
 
 
-def test_bad_hosts_values_are_one_line_errors(tmp_path):
-    msg = error(tmp_path, GOOD.replace("host: hunters}", "host: hunters, hosts: 0}"))
-    assert "agents[1].hosts: must be at least 1, not 0" in msg
-    msg = error(tmp_path, GOOD.replace("host: hunters}", "host: hunters, hosts: two}"))
-    assert "agents[1].hosts: must be a whole number, not the string 'two'" in msg
-    msg = error(tmp_path, GOOD.replace("host: hunters}", "host: hunters, hosts: 4}"))
-    assert "agents[1].hosts: 4 agent hosts for 3 agent(s); give at most count (3) hosts" in msg
-    msg = error(tmp_path, GOOD.replace(", host: hunters}", ", hosts: 2}"))
-    assert "agents[1].hosts: spreads the agents over 2 host groups named after 'host'; add e.g. host: swarm" in msg
-    msg = error(tmp_path, GOOD.replace("host: hunters}", 'host: "h{i}", hosts: 2}'))
-    assert "agents[1].host: with 'hosts' the groups are named 'h{i}' + 0..1; remove '{i}'" in msg
-    msg = error(tmp_path, GOOD.replace("host: hunters}", "host: hunters, hostz: 2}"))
-    assert "hosts" in msg  # an unknown key: did you mean
+# ---------------------------------------------------------------------------- one-line mistakes
+def _row(base: str, old: str, new: str, *expect: str, id: str):
+    return pytest.param(base, old, new, expect, id=id)
+
+
+G, R = "GOOD", "REHEARSED"
+MISTAKES = [
+    # unknown keys suggest the near one
+    _row(G, "agent_types:", "agent_type:", "agent_type: unknown key; did you mean 'agent_types'?", id="key-top"),
+    _row(
+        G,
+        "{type: prey, robot: r0}",
+        "{type: prey, robto: r0}",
+        "applications.virtual.agents[0].robto: unknown key; did you mean 'robot'?",
+        id="key-agent",
+    ),
+    _row(G, "end: {duration: 10}", "end: {duraton: 10}", "applications.plain.end.duraton", "'duration'", id="key-end"),
+    _row(G, "nav: vfh", "nva: vfh", "simulator.nva: unknown key; did you mean 'nav'?", id="key-simulator"),
+    # missing required keys
+    _row(G, "scenario: demo", "", "the key 'scenario' is missing", id="missing-scenario"),
+    _row(G, "    end: {duration: 10}\n", "", "applications.plain: the key 'end' is missing; add it", id="missing-end"),
+    # wrong types
+    _row(
+        G,
+        "count: 3",
+        "count: three",
+        "agents[1].count: must be a whole number, not the string 'three'",
+        id="type-count",
+    ),
+    _row(G, "timeout: 60", "timeout: soon", "end.timeout: must be a number", id="type-timeout"),
+    _row(G, "speedup: 2", "speedup: -1", "simulator.speedup: must be a positive number", id="type-speedup"),
+    _row(G, "nav: vfh", "nav: astar", "unknown local planner 'astar'; use one of vfh, nd, snd", id="type-nav"),
+    # unknown agent type
+    _row(
+        G,
+        "{type: prey, robot: r0}",
+        "{type: pray, robot: r0}",
+        "agents[0].type: unknown agent type 'pray'; did you mean 'prey'?",
+        id="agent-type",
+    ),
+    # duplicate agent ids and robots
+    _row(
+        G,
+        "{type: reporter}",
+        "{type: reporter, id: hunter1}",
+        "agent id 'hunter1' is used twice (also by applications.virtual.agents[1])",
+        id="dup-id",
+    ),
+    _row(G, 'id: "hunter{i}"', "id: hunter", "3 agents cannot share id 'hunter'", id="dup-count-id"),
+    _row(G, 'robot: "r{i}"', "robot: r1", "3 agents cannot share robot 'r1'", id="dup-robot"),
+    _row(G, "id: rep}", "id: a/b}", "one key chunk", id="id-chunk"),
+    # the end needs an event or a duration, and a count of at least one
+    _row(
+        G,
+        "end: {duration: 10}",
+        "end: {timeout: 10}",
+        "applications.plain.end: needs 'event' (with 'count') or 'duration'",
+        id="end-none",
+    ),
+    _row(
+        G,
+        "count: 2, timeout: 60",
+        "count: 0, timeout: 60",
+        "applications.virtual.end.count: must be at least 1, not 0",
+        id="end-count",
+    ),
+    _row(G, "count: 3,", "count: 0,", "agents[1].count: must be at least 1", id="agent-count"),
+    _row(
+        G,
+        "end: {duration: 10}",
+        "end: {duration: 10, event: caught}",
+        "either 'event' (with 'count') or 'duration', not both",
+        id="end-both",
+    ),
+    _row(
+        G,
+        "end: {duration: 10}",
+        "end: {duration: 10, timeout: 5}",
+        "end.timeout: 5 s must be longer than the duration 10 s",
+        id="end-timeout",
+    ),
+    _row(
+        G,
+        "end: {duration: 10}",
+        "end: {duration: 10, count: 2}",
+        "end.count: counts outcomes of an 'event'",
+        id="end-count-duration",
+    ),
+    # the rehearse section
+    _row(
+        R,
+        "robot: r0, nav",
+        "robt: r0, nav",
+        "applications.mixed.rehearse.robt: unknown key; did you mean 'robot'?",
+        id="rehearse-key",
+    ),
+    _row(
+        R,
+        "robot: r0, nav",
+        "nav",
+        "applications.mixed.rehearse: the key 'robot' is missing; add it",
+        id="rehearse-robot-missing",
+    ),
+    _row(
+        R,
+        "laser: UTM-30LX",
+        "laser: UTM-30",
+        "applications.mixed.rehearse.laser: unknown laser 'UTM-30'; did you mean 'UTM-30LX'?",
+        id="rehearse-laser",
+    ),
+    _row(
+        R,
+        "laser: UTM-30LX",
+        "node: sim",
+        "rehearse.node: 'sim' is the virtual simulator's node; name the real world's another",
+        id="rehearse-node",
+    ),
+    _row(R, "robot: r0", "robot: r/0", "rehearse.robot: 'r/0' is no node name", id="rehearse-robot-name"),
+    _row(
+        R,
+        "{world: WORLD}",
+        "{world: WORLD, speedup: 3}",
+        "applications.mixed.simulator.speedup: the rehearsed real world runs in real time",
+        id="rehearse-speedup",
+    ),
+    _row(
+        R,
+        "rehearse: {world: WORLD,",
+        "rehearse: {world: nowhere.world,",
+        "rehearse.world: file 'nowhere.world' does not exist",
+        id="rehearse-world",
+    ),
+    # bad 'hosts' values
+    _row(G, "host: hunters}", "host: hunters, hosts: 0}", "agents[1].hosts: must be at least 1, not 0", id="hosts-0"),
+    _row(
+        G,
+        "host: hunters}",
+        "host: hunters, hosts: two}",
+        "agents[1].hosts: must be a whole number, not the string 'two'",
+        id="hosts-two",
+    ),
+    _row(
+        G,
+        "host: hunters}",
+        "host: hunters, hosts: 4}",
+        "agents[1].hosts: 4 agent hosts for 3 agent(s); give at most count (3) hosts",
+        id="hosts-too-many",
+    ),
+    _row(
+        G,
+        ", host: hunters}",
+        ", hosts: 2}",
+        "agents[1].hosts: spreads the agents over 2 host groups named after 'host'; add e.g. host: swarm",
+        id="hosts-no-host",
+    ),
+    _row(
+        G,
+        "host: hunters}",
+        'host: "h{i}", hosts: 2}',
+        "agents[1].host: with 'hosts' the groups are named 'h{i}' + 0..1; remove '{i}'",
+        id="hosts-index",
+    ),
+    _row(
+        G,
+        "host: hunters}",
+        "host: hunters, hostz: 2}",
+        "agents[1].hostz: unknown key; did you mean 'host'?",
+        id="hosts-unknown-key",
+    ),
+]
+
+
+@pytest.mark.parametrize(("base", "old", "new", "expect"), MISTAKES)
+def test_a_mistake_is_one_line_naming_its_place_and_a_fix(tmp_path, base, old, new, expect):
+    text = {"GOOD": GOOD, "REHEARSED": REHEARSED}[base]
+    assert old in text, f"the edit {old!r} -> {new!r} changes nothing in {base}"
+    msg = error(tmp_path, text.replace(old, new)).partition(".yaml: ")[2]  # not the path: it names the test
+    for part in expect:
+        assert part in msg, (part, msg)
