@@ -10,45 +10,12 @@ from __future__ import annotations
 import asyncio
 import math
 
-from agents.dispatch.agent import DispatcherAgent, FleetWorker
-from agents.dispatch.tasks import Task, TaskRequest, TaskStatus, task_places
+from agents.dispatch.agent import DispatcherAgent
+from agents.dispatch.tasks import TaskRequest, TaskStatus
 from agents.runtime import Agent, AgentHost
 from rsal.transport import TransportArgs
+from tests.agents.standin import StandIn
 from tests.conftest import free_port
-
-
-class StandIn(FleetWorker, Agent):
-    def __init__(self, agent_id: str, x: float, y: float, seconds: float = 0.3):
-        Agent.__init__(self, agent_id, period=0.1, robot=agent_id.upper())
-        self.init_worker(speed=0.5, threshold=0.2, target=0.9, status_every=0.2, agent_id=agent_id)
-        self.pos = (x, y)
-        self.seconds = seconds
-        self.performed: list[str] = []
-        self.abandoned: list[str] = []
-        self.hold = asyncio.Event()
-        self.hold.set()
-
-    async def created(self) -> None:
-        self.start_worker()
-
-    async def killed(self) -> None:
-        self.stop_worker()
-
-    def where(self):
-        return self.pos
-
-    async def step(self) -> None:
-        self.report_status()
-
-    async def perform(self, task: Task) -> str:
-        await self.hold.wait()
-        await asyncio.sleep(self.seconds)
-        self.pos = task_places(task)[-1]
-        self.performed.append(task.id)
-        return ""
-
-    async def abandon(self, task: Task) -> None:
-        self.abandoned.append(task.id)
 
 
 async def _until(cond, timeout: float, what: str):

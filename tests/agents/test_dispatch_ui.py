@@ -12,18 +12,17 @@ performed; a bad task is refused in one line.
 
 from __future__ import annotations
 
-import asyncio
 import subprocess
 
 import pytest
 
 from agents.control.api import ApiError
 from agents.control.tasks import task_from_form
-from agents.dispatch.agent import FleetWorker
 from agents.dispatch.client import TaskBoard, parse_route, submit_request
-from agents.dispatch.tasks import Task, TaskStatus, task_places
-from agents.runtime import Agent, AgentHost
+from agents.dispatch.tasks import TaskStatus
+from agents.runtime import AgentHost
 from rsal.transport import TransportArgs
+from tests.agents.standin import StandIn
 from tests.agents.test_control import assert_one_line_error, call
 from tests.conftest import ROOT, LoopThread, free_port, rsal_cmd, wait_until
 
@@ -129,44 +128,6 @@ def test_no_dispatcher_is_one_line_not_a_wait_for_ever(tmp_path, monkeypatch):
 
 
 # ---------------------------------------------------------------------------- real processes
-class StandIn(FleetWorker, Agent):
-    """A robot with no body: it performs a task by waiting, and records what it performed."""
-
-    def __init__(self, agent_id: str):
-        Agent.__init__(self, agent_id, period=0.1, robot="r0")
-        self.init_worker(speed=0.5, threshold=0.2, target=0.9, status_every=0.2, agent_id=agent_id)
-        self.pos = (0.0, 0.0)
-        self.performed: list[str] = []
-        self.abandoned: list[str] = []
-        self.gate: asyncio.Event | None = None
-
-    async def created(self) -> None:
-        self.gate = asyncio.Event()
-        self.gate.set()
-        self.start_worker()
-
-    async def killed(self) -> None:
-        self.stop_worker()
-
-    def where(self):
-        return self.pos
-
-    async def step(self) -> None:
-        self.report_status()
-
-    async def perform(self, task: Task) -> str:
-        assert self.gate is not None
-        self.heading_to = task_places(task)[0]
-        await self.gate.wait()
-        await asyncio.sleep(0.3)
-        self.pos = task_places(task)[-1]
-        self.performed.append(task.id)
-        return ""
-
-    async def abandon(self, task: Task) -> None:
-        self.abandoned.append(task.id)
-
-
 @pytest.mark.timeout(120)
 def test_control_lists_a_submitted_tasks_states_in_order_and_cancels_one(procs, tmp_path):
     port, fabric = free_port(), f"tcp/127.0.0.1:{free_port()}"
@@ -189,7 +150,7 @@ def test_control_lists_a_submitted_tasks_states_in_order_and_cancels_one(procs, 
     lt = LoopThread()
     host = lt.run(_open_host(fabric))
     try:
-        robot = lt.run(host.start(StandIn("fleet0")))
+        robot = lt.run(host.start(StandIn("fleet0", robot="r0")))
         wait_until(lambda: "dispatcher" in call(base, "GET", "/api/state")[1]["agents"], 60, f"{disp.output()}")
 
         # a task from rsal task: the panel shows its states in order and the robot that did it
@@ -210,7 +171,7 @@ def test_control_lists_a_submitted_tasks_states_in_order_and_cancels_one(procs, 
         assert robot.performed == ["a1"] and robot.pos == (2.0, 1.0)  # the stand-in's own record
 
         # a task submitted from the panel and cancelled while under way: cancelled, never performed
-        lt.loop.call_soon_threadsafe(robot.gate.clear)
+        lt.loop.call_soon_threadsafe(robot.hold.clear)
         status, b = call(base, "POST", "/api/tasks", body={"kind": "patrol", "route": "0, 0; 3, 0; 3, 2"})
         assert status == 200 and b["state"] == "bidding" and b["id"].startswith("ctl-"), b
         wait_until(lambda: row(b["id"], "active"), 30, "the panel's task active")
@@ -218,7 +179,7 @@ def test_control_lists_a_submitted_tasks_states_in_order_and_cancels_one(procs, 
         assert status == 200 and c["state"] == "cancelled", c
         assert c["states"] == ["bidding", "assigned", "active", "cancelled"] and c["robot"] == "fleet0"
         wait_until(lambda: robot.abandoned == [b["id"]], 10, "the robot abandons the cancelled task")
-        lt.loop.call_soon_threadsafe(robot.gate.set)
+        lt.loop.call_soon_threadsafe(robot.hold.set)
         assert robot.performed == ["a1"]
 
         # bad input: one line each
@@ -254,7 +215,7 @@ def test_the_page_submits_lists_and_cancels_tasks(procs, tmp_path):
     lt = LoopThread()
     host = lt.run(_open_host(fabric))
     try:
-        robot = lt.run(host.start(StandIn("fleet0")))
+        robot = lt.run(host.start(StandIn("fleet0", robot="r0")))
         wait_until(lambda: "dispatcher" in call(base, "GET", "/api/state")[1]["agents"], 60, "the dispatcher")
         with sync_api.sync_playwright() as pw:
             try:
@@ -286,7 +247,7 @@ def test_the_page_submits_lists_and_cancels_tasks(procs, tmp_path):
                     "() => document.querySelector('#task-error').textContent.includes('route point')"
                 )
 
-                lt.loop.call_soon_threadsafe(robot.gate.clear)
+                lt.loop.call_soon_threadsafe(robot.hold.clear)
                 page.fill("#task-route", "0, 0; 3, 0; 3, 2")
                 page.click("#task-submit")
                 active = page.locator("#tasks tbody tr", has=page.locator("td.taskstate.active"))
@@ -299,7 +260,7 @@ def test_the_page_submits_lists_and_cancels_tasks(procs, tmp_path):
                 assert errors == []
             finally:
                 browser.close()
-        lt.loop.call_soon_threadsafe(robot.gate.set)
+        lt.loop.call_soon_threadsafe(robot.hold.set)
     finally:
         lt.run(host.stop())
         lt.close()
