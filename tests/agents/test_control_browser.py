@@ -13,40 +13,19 @@ is missing or playwright is not installed.
 from __future__ import annotations
 
 import math
-import os
-import shutil
 import signal
 import time
 import urllib.request
-from pathlib import Path
 
 import pytest
 
 from rsal.client import Fabric
 from rsal.transport import TransportArgs
+from tests.agents.browser import save_screenshot
 from tests.conftest import free_port, rsal_cmd, wait_until
 
-CHROMIUM = "/usr/bin/chromium"
-FLAGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--enable-unsafe-swiftshader",
-    "--use-angle=swiftshader",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
 AGENTS = ("hunter1", "hunter2", "prey0")
 ROBOTS = ("r0", "r1", "r2")  # maps/hunt.world
-
-
-def _ensure_chromium() -> None:
-    """Debian's chromium at /usr/bin/chromium, installed by the test command's set-up (``./dev.sh test``);
-    where it is missing the test skips and says how to install it."""
-    if not Path(CHROMIUM).exists():
-        pytest.skip(f"{CHROMIUM} is missing: ./dev.sh test installs it as root, or run apt-get install chromium")
 
 
 # where a robot is drawn on the map canvas, in page coordinates, and its pose (the page's own transform)
@@ -70,20 +49,8 @@ def _drag(page, where: dict, length: float = 40.0) -> None:
     page.mouse.up()
 
 
-def _save(page, tmp_path: Path, name: str) -> Path:
-    path = tmp_path / name
-    page.screenshot(path=str(path), full_page=True)
-    if os.environ.get("RSAL_ARTIFACTS"):
-        out = Path(os.environ["RSAL_ARTIFACTS"])
-        out.mkdir(parents=True, exist_ok=True)
-        shutil.copy(path, out / name)
-    return path
-
-
 @pytest.mark.timeout(300)  # the test itself takes 30-150 s
-def test_page_starts_hunt_and_prey_shows_agents_and_rerun_view_and_stops_it(procs, tmp_path):
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e .[test])")
-    _ensure_chromium()
+def test_page_starts_hunt_and_prey_shows_agents_and_rerun_view_and_stops_it(procs, tmp_path, browser_page):
     port = free_port()
     fabric = f"tcp/127.0.0.1:{free_port()}"
     ctl = procs(rsal_cmd("control", "--port", str(port), "--listen", fabric))
@@ -98,124 +65,114 @@ def test_page_starts_hunt_and_prey_shows_agents_and_rerun_view_and_stops_it(proc
 
     wait_until(up, 60, f"rsal control serving on {base}\n{ctl.output()}", interval=0.2)
 
-    with sync_api.sync_playwright() as pw:
-        try:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
-        except Exception as e:  # a chromium that cannot start here: say why
-            pytest.skip(f"{CHROMIUM} does not start headless: {' '.join(str(e).split())[:300]}")
-        try:
-            page = browser.new_page(viewport={"width": 1600, "height": 1200})
-            errors: list[str] = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(base)
-            page.wait_for_selector('#scenario option[value="hunt_prey"]', state="attached", timeout=30_000)
-            page.select_option("#scenario", "hunt_prey")
-            page.select_option("#app", "virtual")
-            assert page.locator('#arguments input[data-arg="report_every"]').input_value() == "1.0"
-            # an argument added before the start: hunters that must come within 5 cm never catch the
-            # prey, so the run goes on until Stop is clicked (it would end with the first catch)
-            page.fill("#new-arg-name", "capture_distance")
-            page.fill("#new-arg-value", "0.05")
-            page.click("#add-arg")
-            assert page.locator('#arguments input[data-arg="capture_distance"]').input_value() == "0.05"
-            with page.expect_response(lambda r: r.url.endswith("/api/runs"), timeout=60_000) as resp:
-                page.click("#start")
-            t0 = time.monotonic()
-            phases: dict[str, float] = {}
+    page, errors = browser_page(1600, 1200)
+    page.goto(base)
+    page.wait_for_selector('#scenario option[value="hunt_prey"]', state="attached", timeout=30_000)
+    page.select_option("#scenario", "hunt_prey")
+    page.select_option("#app", "virtual")
+    assert page.locator('#arguments input[data-arg="report_every"]').input_value() == "1.0"
+    # an argument added before the start: hunters that must come within 5 cm never catch the
+    # prey, so the run goes on until Stop is clicked (it would end with the first catch)
+    page.fill("#new-arg-name", "capture_distance")
+    page.fill("#new-arg-value", "0.05")
+    page.click("#add-arg")
+    assert page.locator('#arguments input[data-arg="capture_distance"]').input_value() == "0.05"
+    with page.expect_response(lambda r: r.url.endswith("/api/runs"), timeout=60_000) as resp:
+        page.click("#start")
+    t0 = time.monotonic()
+    phases: dict[str, float] = {}
 
-            def mark(what: str) -> None:  # seconds since the click on Start, printed at the end
-                phases[what] = time.monotonic() - t0
+    def mark(what: str) -> None:  # seconds since the click on Start, printed at the end
+        phases[what] = time.monotonic() - t0
 
-            assert resp.value.status == 200, resp.value.text()
-            assert resp.value.json()["set"] == {"capture_distance": "0.05"}
-            assert "--set capture_distance=0.05" in resp.value.json()["command"]
+    assert resp.value.status == 200, resp.value.text()
+    assert resp.value.json()["set"] == {"capture_distance": "0.05"}
+    assert "--set capture_distance=0.05" in resp.value.json()["command"]
 
-            all_there = "ids => ids.every(id => document.querySelector(`#agents li[data-agent='${id}']`))"
-            page.wait_for_function(all_there, arg=list(AGENTS), timeout=180_000, polling=250)
-            mark("agents alive")
-            assert page.locator('.run[data-run="1"] .state').inner_text() == "running"
-            # the map of the simulator's floorplan with the robots on it
-            page.wait_for_function(
-                "() => document.querySelector('#map-info').textContent.startsWith('sim:map:0')", timeout=60_000
-            )
-            page.wait_for_function("() => document.querySelectorAll('#robot option').length === 3", timeout=60_000)
-            # the Rerun web view of the same fabric beside the controls (software rendering: give it time)
-            page.wait_for_function(
-                "() => (document.querySelector('#viewer').getAttribute('src') || '').startsWith('http://localhost:')",
-                timeout=90_000,
-            )
-            assert "rerun" in page.locator("#viewer").get_attribute("src")
-            page.frame_locator("#viewer").locator("canvas").first.wait_for(state="visible", timeout=90_000)
-            mark("rerun view shown")
-            # place hunter r1 on the map (its localizer's initial pose) and send it a goal: press at
-            # its drawn position, drag towards its heading
-            page.select_option("#robot", "r1")
-            page.check("#mode-pose")
-            page.locator("#map").scroll_into_view_if_needed()
-            mark("pose mode")
-            where = page.evaluate(ROBOT_ON_CANVAS, "r1")
-            with page.expect_response(lambda r: "/api/robots/r1/pose" in r.url, timeout=30_000) as resp:
-                _drag(page, where)
-            assert resp.value.status == 200, resp.value.text()
-            assert "initial pose set" in resp.value.json()["note"]
-            mark("pose set")
-            page.check("#mode-goal")
-            where = page.evaluate(ROBOT_ON_CANVAS, "r1")
-            with page.expect_response(lambda r: "/api/robots/r1/goal" in r.url, timeout=30_000) as resp:
-                _drag(page, where)
-            assert resp.value.status == 200, resp.value.text()
-            goal = resp.value.json()["goal"]
-            assert abs(goal["x"] - where["wx"]) < 0.2 and abs(goal["y"] - where["wy"]) < 0.2, (goal, where)
-            assert abs((goal["yaw"] - math.degrees(where["yaw"]) + 180) % 360 - 180) < 5, (goal, where)
-            page.check('input[name="mode"][value="none"]')
-            mark("goal sent")
-            shot = _save(page, tmp_path, "control-hunt-running.png")
-            mark("screenshot")
-            assert shot.stat().st_size > 10_000
+    all_there = "ids => ids.every(id => document.querySelector(`#agents li[data-agent='${id}']`))"
+    page.wait_for_function(all_there, arg=list(AGENTS), timeout=180_000, polling=250)
+    mark("agents alive")
+    assert page.locator('.run[data-run="1"] .state').inner_text() == "running"
+    # the map of the simulator's floorplan with the robots on it
+    page.wait_for_function(
+        "() => document.querySelector('#map-info').textContent.startsWith('sim:map:0')", timeout=60_000
+    )
+    page.wait_for_function("() => document.querySelectorAll('#robot option').length === 3", timeout=60_000)
+    # the Rerun web view of the same fabric beside the controls (software rendering: give it time)
+    page.wait_for_function(
+        "() => (document.querySelector('#viewer').getAttribute('src') || '').startsWith('http://localhost:')",
+        timeout=90_000,
+    )
+    assert "rerun" in page.locator("#viewer").get_attribute("src")
+    page.frame_locator("#viewer").locator("canvas").first.wait_for(state="visible", timeout=90_000)
+    mark("rerun view shown")
+    # place hunter r1 on the map (its localizer's initial pose) and send it a goal: press at
+    # its drawn position, drag towards its heading
+    page.select_option("#robot", "r1")
+    page.check("#mode-pose")
+    page.locator("#map").scroll_into_view_if_needed()
+    mark("pose mode")
+    where = page.evaluate(ROBOT_ON_CANVAS, "r1")
+    with page.expect_response(lambda r: "/api/robots/r1/pose" in r.url, timeout=30_000) as resp:
+        _drag(page, where)
+    assert resp.value.status == 200, resp.value.text()
+    assert "initial pose set" in resp.value.json()["note"]
+    mark("pose set")
+    page.check("#mode-goal")
+    where = page.evaluate(ROBOT_ON_CANVAS, "r1")
+    with page.expect_response(lambda r: "/api/robots/r1/goal" in r.url, timeout=30_000) as resp:
+        _drag(page, where)
+    assert resp.value.status == 200, resp.value.text()
+    goal = resp.value.json()["goal"]
+    assert abs(goal["x"] - where["wx"]) < 0.2 and abs(goal["y"] - where["wy"]) < 0.2, (goal, where)
+    assert abs((goal["yaw"] - math.degrees(where["yaw"]) + 180) % 360 - 180) < 5, (goal, where)
+    page.check('input[name="mode"][value="none"]')
+    mark("goal sent")
+    shot = save_screenshot(page, tmp_path, "control-hunt-running.png")
+    mark("screenshot")
+    assert shot.stat().st_size > 10_000
 
-            # Stop all: the emergency stop of every base, whatever the scenario's agents command (ground
-            # truth); the header keeps it on screen with the page scrolled down to the map
-            assert page.evaluate("window.scrollY") > 0, "the page should be scrolled to the map here"
-            assert page.locator("#estop-all").bounding_box()["y"] >= 0, "Stop all scrolled off the screen"
-            with page.expect_response(lambda r: r.url.endswith("/api/estop"), timeout=30_000) as resp:
-                page.click("#estop-all")
-            assert resp.value.status == 200, resp.value.text()
-            mark("stop all")
-            with Fabric.connect(TransportArgs(connect=[fabric])) as fab:
-                fab.node("sim:simulation:0").wait_for("sim:simulation:0", 1, timeout=10)
-                sim = fab.device("sim:simulation:0")
+    # Stop all: the emergency stop of every base, whatever the scenario's agents command (ground
+    # truth); the header keeps it on screen with the page scrolled down to the map
+    assert page.evaluate("window.scrollY") > 0, "the page should be scrolled to the map here"
+    assert page.locator("#estop-all").bounding_box()["y"] >= 0, "Stop all scrolled off the screen"
+    with page.expect_response(lambda r: r.url.endswith("/api/estop"), timeout=30_000) as resp:
+        page.click("#estop-all")
+    assert resp.value.status == 200, resp.value.text()
+    mark("stop all")
+    with Fabric.connect(TransportArgs(connect=[fabric])) as fab:
+        fab.node("sim:simulation:0").wait_for("sim:simulation:0", 1, timeout=10)
+        sim = fab.device("sim:simulation:0")
 
-                def truth() -> dict:
-                    return {n: sim.get_pose(n) for n in ROBOTS}
+        def truth() -> dict:
+            return {n: sim.get_pose(n) for n in ROBOTS}
 
-                time.sleep(0.5)  # the sampling interval of the ground truth (a base stops before it answers)
-                a = truth()
-                time.sleep(1.0)
-                b = truth()
-                moved = {n: math.hypot(b[n].x - a[n].x, b[n].y - a[n].y) for n in ROBOTS}
-                assert all(d < 0.01 for d in moved.values()), f"robots moved after Stop all: {moved}"
-                with page.expect_response(lambda r: r.url.endswith("/api/estop"), timeout=30_000) as resp:
-                    page.click("#estop-release-all")
-                assert resp.value.status == 200, resp.value.text()
-                wait_until(
-                    lambda: any(math.hypot(p.x - b[n].x, p.y - b[n].y) > 0.05 for n, p in truth().items()),
-                    30,
-                    "a robot to move again after Release all (its agent still commands it)",
-                )
-                mark("released")
+        time.sleep(0.5)  # the sampling interval of the ground truth (a base stops before it answers)
+        a = truth()
+        time.sleep(1.0)
+        b = truth()
+        moved = {n: math.hypot(b[n].x - a[n].x, b[n].y - a[n].y) for n in ROBOTS}
+        assert all(d < 0.01 for d in moved.values()), f"robots moved after Stop all: {moved}"
+        with page.expect_response(lambda r: r.url.endswith("/api/estop"), timeout=30_000) as resp:
+            page.click("#estop-release-all")
+        assert resp.value.status == 200, resp.value.text()
+        wait_until(
+            lambda: any(math.hypot(p.x - b[n].x, p.y - b[n].y) > 0.05 for n, p in truth().items()),
+            30,
+            "a robot to move again after Release all (its agent still commands it)",
+        )
+        mark("released")
 
-            page.click('.run[data-run="1"] button.stop')
-            none_left = "ids => ids.every(id => !document.querySelector(`#agents li[data-agent='${id}']`))"
-            page.wait_for_function(none_left, arg=list(AGENTS), timeout=90_000, polling=250)
-            mark("agents gone")
-            page.wait_for_function(
-                "() => document.querySelector('.run[data-run=\"1\"] .state').textContent === 'stopped'",
-                timeout=90_000,
-            )
-            _save(page, tmp_path, "control-hunt-stopped.png")
-            assert not errors, errors
-        finally:
-            browser.close()
+    page.click('.run[data-run="1"] button.stop')
+    none_left = "ids => ids.every(id => !document.querySelector(`#agents li[data-agent='${id}']`))"
+    page.wait_for_function(none_left, arg=list(AGENTS), timeout=90_000, polling=250)
+    mark("agents gone")
+    page.wait_for_function(
+        "() => document.querySelector('.run[data-run=\"1\"] .state').textContent === 'stopped'",
+        timeout=90_000,
+    )
+    save_screenshot(page, tmp_path, "control-hunt-stopped.png")
+    assert not errors, errors
 
     ctl.signal(signal.SIGTERM)
     assert ctl.p.wait(60) == 0, ctl.output()

@@ -22,6 +22,7 @@ from agents.dispatch.client import TaskBoard, parse_route, submit_request
 from agents.dispatch.tasks import TaskStatus
 from agents.runtime import AgentHost
 from rsal.transport import TransportArgs
+from tests.agents.browser import save_screenshot
 from tests.agents.standin import StandIn
 from tests.agents.test_control import assert_one_line_error, call
 from tests.conftest import ROOT, LoopThread, free_port, rsal_cmd, wait_until
@@ -197,14 +198,10 @@ async def _open_host(ep: str) -> AgentHost:
 
 
 @pytest.mark.timeout(180)
-def test_the_page_submits_lists_and_cancels_tasks(procs, tmp_path):
+def test_the_page_submits_lists_and_cancels_tasks(procs, tmp_path, browser_page):
     """The Tasks panel in a browser (Debian's chromium driven by Playwright, as
-    test_control_browser.py): a go_to from the form is listed until done, a bad route is refused
+    tests/agents/browser.py): a go_to from the form is listed until done, a bad route is refused
     in one line on the page, a patrol under way is cancelled with its button."""
-    from tests.agents.test_control_browser import CHROMIUM, FLAGS, _ensure_chromium, _save
-
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e .[test])")
-    _ensure_chromium()
     port, fabric = free_port(), f"tcp/127.0.0.1:{free_port()}"
     ctl = procs(
         rsal_cmd("control", "--port", str(port), "--listen", fabric, "--no-watch", "--scenarios", str(tmp_path))
@@ -217,49 +214,34 @@ def test_the_page_submits_lists_and_cancels_tasks(procs, tmp_path):
     try:
         robot = lt.run(host.start(StandIn("fleet0", robot="r0")))
         wait_until(lambda: "dispatcher" in call(base, "GET", "/api/state")[1]["agents"], 60, "the dispatcher")
-        with sync_api.sync_playwright() as pw:
-            try:
-                browser = pw.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
-            except Exception as e:  # a chromium that cannot start here: say why
-                pytest.skip(f"{CHROMIUM} does not start headless: {' '.join(str(e).split())[:300]}")
-            try:
-                page = browser.new_page(viewport={"width": 1400, "height": 1000})
-                errors: list[str] = []
-                page.on("pageerror", lambda e: errors.append(str(e)))
-                page.goto(base + "/")
-                page.fill("#task-x", "2")
-                page.fill("#task-y", "1")
-                page.click("#task-submit")
-                page.wait_for_selector("#tasks tr td.taskstate.done", timeout=30_000)
-                row = page.locator("#tasks tbody tr").first
-                assert (
-                    row.locator("td").nth(1).inner_text() == "go_to"
-                    and row.locator("td").nth(3).inner_text() == "fleet0"
-                )
-                assert row.locator("button.cancel").is_disabled()
-                assert robot.performed == [row.get_attribute("data-task")]
+        page, errors = browser_page(1400, 1000)
+        page.goto(base + "/")
+        page.fill("#task-x", "2")
+        page.fill("#task-y", "1")
+        page.click("#task-submit")
+        page.wait_for_selector("#tasks tr td.taskstate.done", timeout=30_000)
+        row = page.locator("#tasks tbody tr").first
+        assert row.locator("td").nth(1).inner_text() == "go_to" and row.locator("td").nth(3).inner_text() == "fleet0"
+        assert row.locator("button.cancel").is_disabled()
+        assert robot.performed == [row.get_attribute("data-task")]
 
-                page.select_option("#task-kind", "patrol")
-                assert page.locator("#task-x").is_hidden() and page.locator("#task-route").is_visible()
-                page.fill("#task-route", "1, 0; a, b")
-                page.click("#task-submit")
-                page.wait_for_function(
-                    "() => document.querySelector('#task-error').textContent.includes('route point')"
-                )
+        page.select_option("#task-kind", "patrol")
+        assert page.locator("#task-x").is_hidden() and page.locator("#task-route").is_visible()
+        page.fill("#task-route", "1, 0; a, b")
+        page.click("#task-submit")
+        page.wait_for_function("() => document.querySelector('#task-error').textContent.includes('route point')")
 
-                lt.loop.call_soon_threadsafe(robot.hold.clear)
-                page.fill("#task-route", "0, 0; 3, 0; 3, 2")
-                page.click("#task-submit")
-                active = page.locator("#tasks tbody tr", has=page.locator("td.taskstate.active"))
-                active.wait_for(timeout=30_000)
-                tid = active.get_attribute("data-task")
-                active.locator("button.cancel").click()
-                page.wait_for_selector(f"#tasks tr[data-task='{tid}'] td.taskstate.cancelled", timeout=15_000)
-                _save(page, tmp_path, "tasks-panel.png")
-                wait_until(lambda: robot.abandoned == [tid], 10, "the robot abandons the cancelled patrol")
-                assert errors == []
-            finally:
-                browser.close()
+        lt.loop.call_soon_threadsafe(robot.hold.clear)
+        page.fill("#task-route", "0, 0; 3, 0; 3, 2")
+        page.click("#task-submit")
+        active = page.locator("#tasks tbody tr", has=page.locator("td.taskstate.active"))
+        active.wait_for(timeout=30_000)
+        tid = active.get_attribute("data-task")
+        active.locator("button.cancel").click()
+        page.wait_for_selector(f"#tasks tr[data-task='{tid}'] td.taskstate.cancelled", timeout=15_000)
+        save_screenshot(page, tmp_path, "tasks-panel.png")
+        wait_until(lambda: robot.abandoned == [tid], 10, "the robot abandons the cancelled patrol")
+        assert errors == []
         lt.loop.call_soon_threadsafe(robot.hold.set)
     finally:
         lt.run(host.stop())
