@@ -77,8 +77,9 @@ __all__ = ["register", "run_scenario"]
 PROG = "rsal run"
 SIM_NODE = "sim"  # the node of the simulator that rsal sim serves
 SIM_DEVICE = f"rsal/{SIM_NODE}/simulation/0"
-#: seconds each kind of child gets to exit after SIGTERM before SIGKILL
-STOP_DEADLINES = {"host": 15.0, "server": 10.0, "rehearse": 15.0, "sim": 10.0}
+#: seconds each kind of child gets to exit after SIGTERM before SIGKILL: more than the 10 s a
+#: session's close may wait for a link to a cut host (docs/deployment.md, "Leases and cut links")
+STOP_DEADLINES = {"host": 15.0, "server": 15.0, "rehearse": 15.0, "sim": 15.0}
 #: what each kind of child is called in a failure line
 CHILD_KINDS = {"sim": "the simulator", "rehearse": "the rehearsal", "server": "device server", "host": "agent host"}
 

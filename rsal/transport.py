@@ -22,6 +22,7 @@ from .errnet import ENDPOINT_FORM, zenoh_summary, zenoh_text
 
 __all__ = [
     "DEFAULT_ENDPOINT",
+    "ZENOH_RUNTIME",
     "TransportArgs",
     "add_transport_args",
     "make_config",
@@ -31,6 +32,14 @@ __all__ = [
 ]
 
 DEFAULT_ENDPOINT = os.environ.get("RSAL_ENDPOINT", "tcp/127.0.0.1:7447")
+
+#: Zenoh's runtimes for the sessions of this process (the ``ZENOH_RUNTIME`` environment variable,
+#: read once, when the first session opens; a value set by the user wins). With Zenoh's built-in
+#: receive runtime, the tokens of a host whose cable was cut outlived their lease by Zenoh's 10 s
+#: TCP linger in about half of the cuts when a peer had two links to that host; with eight
+#: receive workers and fifty blocking threads they went within the lease in every cut measured
+#: (docs/deployment.md, "Leases and cut links").
+ZENOH_RUNTIME = "(rx: (worker_threads: 8, max_blocking_threads: 50))"
 
 
 @dataclass
@@ -160,6 +169,7 @@ def make_config(args: TransportArgs | None = None, *, server: bool = False) -> z
 def open_session(args: TransportArgs | None = None, *, server: bool = False) -> zenoh.Session:
     """Open a Zenoh session; errors become ``ValueError`` with one line."""
     conf = make_config(args, server=server)
+    os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
     try:
         return zenoh.open(conf)
     except Exception as e:

@@ -27,7 +27,7 @@ hunt that ends meanwhile must end with a catch the true poses confirm.
 An agent host placed on a robot host (``rsal host`` there, the scenario's ``machine: robot1``): the
 runner on the agent host launches r0's wall-follower on robot host 1's daemon, r0 drives (ground
 truth), and cutting robot host 1's link is reported by the runner as that machine lost with its
-agent (exit 1), within the lease and the runner's stop.
+agent (exit 1), within the lease and its slack of the cut, three cuts in a row.
 
 Skipped, with the reason, where namespaces cannot be made (not root, no iproute2).
 """
@@ -327,11 +327,31 @@ def test_hunt_and_prey_across_hosts_in_the_secured_profile(lan, tmp_path):
             p.close()
 
 
-@pytest.mark.timeout(300)
+CUTS = 3  # the agent host launched on robot host 1 and its link cut, this many times
+REPORT_BOUND = LEASE_MS / 1000 + 3.0  # s from the cut: the lease, its keep-alive slack and the runner's loop
+
+
+def daemon_seen(lan, host: str, sim_ep: str, name: str) -> bool:
+    """Whether a fresh session on ``host`` finds the daemon ``name``'s token within 5 s."""
+    code = (
+        "import sys\n"
+        "from agents.remote import daemon_alive\n"
+        "from rsal.transport import TransportArgs, open_session\n"
+        "s = open_session(TransportArgs(connect=[sys.argv[1]]))\n"
+        "sys.exit(0 if daemon_alive(s, sys.argv[2], 5.0) else 1)\n"
+    )
+    argv = lan.cmd(host, [sys.executable, "-c", code, sim_ep, name])
+    return subprocess.run(argv, cwd=ROOT, capture_output=True, timeout=60).returncode == 0
+
+
+@pytest.mark.timeout(420)
 def test_an_agent_host_launched_on_a_robot_hosts_daemon_drives_and_a_cut_loses_its_agents(lan, tmp_path):
     """``rsal host`` on robot host 1: the runner on the agent host launches r0's wall-follower there
     (scenario ``machine: robot1``); r0 drives (simulator ground truth); cutting robot host 1's link
-    is reported by the runner in one line, its agent counted as lost, and the run fails."""
+    is reported by the runner in one line, its agent counted as lost, and the run fails. Three
+    times (the link restored and the agent launched again in between): each report comes within
+    the lease and its slack of the cut. (With Zenoh's own receive runtime settings, a presumably
+    lingering close of another link to the cut host delayed it by 10 s in 8 of 12 cuts.)"""
     sim_ep = f"tcp/{lan.host('sim')}:7447"
     lan.host("robot1")
     lan.host("agents")
@@ -362,20 +382,36 @@ def test_an_agent_host_launched_on_a_robot_hosts_daemon_drives_and_a_cut_loses_i
         )
         wait_until(lambda: "up: token hosts/robot1" in daemon.output(), 60, "robot host 1's daemon")
         wait_until(lambda: watch.truths("r0"), 60, "r0's true pose at the agent host")
-        run = start("agents", rsal_cmd("run", str(scenario), "--connect", sim_ep, "--progress", "2", *TUNING))
-        wait_until(lambda: "[run] all 1 agent(s) alive" in run.output() or not run.alive(), 90, "wf0 up on robot1")
-        assert run.alive(), run.output()
-        assert "[run] launched wf0 on machine robot1" in run.output()
-        first = watch.truths("r0")[-1]
-        wait_until(lambda: moved(watch.truths("r0")[-1], first) > 0.3, 60, "r0 to drive under wf0 (ground truth)")
-        lan.cut("robot1")
-        t_cut = time.monotonic()
-        wait_until(lambda: not run.alive(), LEASE_MS / 1000 * 2 + 20, "the runner to report robot host 1 lost")
-        out = run.output()
-        assert run.p.returncode == 1, out[-3000:]
-        assert "[run] machine robot1 lost mid-run: agents wf0 of host group wf0 are lost" in out, out[-3000:]
-        assert "was lost: host daemon 'robot1' left the fabric" in out
-        print(f"robot host 1 reported lost {time.monotonic() - t_cut:.1f} s after the cut (lease {LEASE_MS} ms)")
+
+        def launch_and_cut() -> float:
+            """Launch wf0 on robot1, cut robot1's link once wf0 drives: seconds from the cut until
+            the runner reports robot host 1 lost (its daemon's token gone)."""
+            run = start("agents", rsal_cmd("run", str(scenario), "--connect", sim_ep, "--progress", "2", *TUNING))
+            wait_until(lambda: "[run] all 1 agent(s) alive" in run.output() or not run.alive(), 90, "wf0 up on robot1")
+            assert run.alive(), run.output()
+            assert "[run] launched wf0 on machine robot1" in run.output()
+            first = watch.truths("r0")[-1]
+            wait_until(lambda: moved(watch.truths("r0")[-1], first) > 0.3, 60, "r0 to drive under wf0 (ground truth)")
+            lan.cut("robot1")
+            t_cut = time.monotonic()
+            wait_until(lambda: "lost mid-run" in run.output(), 30, "the runner to report robot host 1 lost")
+            lost = time.monotonic() - t_cut
+            wait_until(lambda: not run.alive(), 30, "the runner to end")
+            out = run.output()
+            assert run.p.returncode == 1, out[-3000:]
+            assert "[run] machine robot1 lost mid-run: agents wf0 of host group wf0 are lost" in out, out[-3000:]
+            assert "was lost: host daemon 'robot1' left the fabric" in out
+            return lost
+
+        reports: list[float] = []
+        for i in range(CUTS):
+            if i:
+                lan.restore("robot1")
+                wait_until(lambda: daemon_seen(lan, "agents", sim_ep, "robot1"), 60, "robot1's daemon back")
+            reports.append(launch_and_cut())
+        text = ", ".join(f"{t:.1f}" for t in reports)
+        print(f"robot host 1 reported lost {text} s after the cuts (lease {LEASE_MS} ms)")
+        assert max(reports) <= REPORT_BOUND, f"a report later than {REPORT_BOUND:g} s after its cut: {text} s"
     finally:
         for p in procs:
             p.close()
