@@ -1,5 +1,6 @@
-"""The map an agent plans on: one ``map`` device's occupancy grid, fetched over the agent's own
-session (Player's ``map`` interface; thesis 3.3, the planner's and the dispatcher's map)."""
+"""The map an agent plans on: one ``map`` device's occupancy grid (Player's ``map`` interface,
+docs/protocol.md), fetched over the agent's own session; the dispatcher and the distribution
+coordinator both use it."""
 
 from __future__ import annotations
 
