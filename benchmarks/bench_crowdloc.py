@@ -1,25 +1,27 @@
 """Sonar localization in a dense crowd, offline: AMCL on each robot's 16 sonars, judged on the truth.
 
 The thesis's swarm (4.2.3) starts 100 Pioneer 3-AT 1.2 m apart; at that density most sonar echoes
-are other robots, which the map does not hold. This benchmark rebuilds the start of that crowd at a
-cost one core affords: ``--robots`` N Pioneer 3-AT of :func:`agents.scenarios.swarm.crowd_world`
-(the thesis world's grid and spacing, the hall floor plan) wander for ``--seconds`` simulated
-seconds in one process (the simulator's ``wander`` controller, not the agents' behaviour: the
-figure is the localizer's, not the crowd's), each with its own :class:`mrs_bridge.nav.amcl.Amcl`
-configured as ``rsal sim --nav`` configures it for a sonar ring, fed every odometry pose and every
-sonar scan as the ``amcl`` driver is.
+are other robots, which the map does not hold. This benchmark rebuilds that crowd at a cost one
+core affords: the thesis world (:func:`agents.scenarios.swarm.crowd_world`, 100 Pioneer 3-AT in the
+hall) with a ``--rows`` x ``--cols`` block of it at the corner (r0.., nearest the hall's walls)
+wandering for ``--seconds`` simulated seconds in one process, the other robots standing (the
+simulator's ``wander`` controller, not the agents' behaviour: the figure is the localizer's, not
+the crowd's). Each wandering robot has its own :class:`mrs_bridge.nav.amcl.Amcl` configured as
+``rsal sim --nav`` configures it for a sonar ring, fed every odometry pose and every sonar scan as
+the ``amcl`` driver is.
 
 Two filters per robot are run on the same scans in the same run:
 
 - ``known=off``: the filter as it was (the map only);
 - ``known=on``: every ``--broadcast`` s each robot learns its neighbours' *estimated* positions (what
-  their agents broadcast; never the truth) within ``--radius`` m, declared to its filter as known
-  obstacles (:meth:`Amcl.set_obstacles`, discs of ``--disc`` m).
+  their agents broadcast; never the truth; a standing robot's is where it stands) within
+  ``--radius`` m, declared to its filter as known obstacles (:meth:`Amcl.set_obstacles`, discs of
+  ``--disc`` m).
 
 Figures per variant: the share of robot-samples (every 0.5 s) within 0.5 m of the true pose, the
 95th percentile and the worst error, and the share of readings the known obstacles left out.
 Output: ``bench=crowdloc key=value ...`` lines.
-Usage: ``python benchmarks/bench_crowdloc.py [--robots 25] [--seconds 30] [--seed 0]``
+Usage: ``python benchmarks/bench_crowdloc.py [--rows 5] [--cols 6] [--seconds 40] [--seed 0]``
 """
 
 from __future__ import annotations
@@ -52,13 +54,15 @@ SAMPLE_EVERY = 0.5  # s, as the thesis swarm's monitor samples
 BOUND = 0.5  # m, the thesis swarm's verdict
 
 
-def run(n: int, seconds: float, seed: int, broadcast: float, radius: float, disc: float, speed: float) -> dict:
+def run(rows: int, cols: int, seconds: float, seed: int, broadcast: float, radius: float, disc: float, speed: float) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "crowd.world"
-        path.write_text(crowd_world(n, model="pioneer3at", bitmap=str(ROOT / "maps" / "hall.png"), seed=seed))
+        path.write_text(crowd_world(100, model="pioneer3at", bitmap=str(ROOT / "maps" / "hall.png"), seed=seed))
         world = World(load_world(str(path), seed=seed))
     grid = grid_of(world)
-    names = list(world.robot_names)
+    names = [f"r{r * 10 + c}" for r in range(rows) for c in range(cols)]
+    standing = [n for n in world.robot_names if n not in names]
+    still = {n: tuple(world.get_pose(n)) for n in standing}
     prm = {**profile.AMCL, **profile.AMCL_SONAR}
     variants = ("off", "on")
     filters = {v: {} for v in variants}
@@ -79,6 +83,8 @@ def run(n: int, seconds: float, seed: int, broadcast: float, radius: float, disc
     wall = time.perf_counter()
     for k in range(int(round(seconds / dt))):
         wander(world, speed=speed)
+        for n in standing:
+            world.set_velocity(n, 0.0, 0.0)
         world.step()
         odo = {r: world.odometry(r) for r in names}
 
@@ -87,10 +93,11 @@ def run(n: int, seconds: float, seed: int, broadcast: float, radius: float, disc
             return e if o0 is None else compose(e, relative(o0, odo[r]))
 
         if k % every_broadcast == 0:  # the agents' broadcasts: estimated positions, not the truth
-            xy = np.array([pose("on", r)[:2] for r in names])
+            xy = np.array([pose("on", r)[:2] for r in names] + [p[:2] for p in still.values()])
             for i, r in enumerate(names):
                 d = np.hypot(*(xy - xy[i]).T)
-                near = (d < radius) & (d > 0)
+                near = d < radius
+                near[i] = False
                 filters["on"][r].set_obstacles(np.column_stack([xy[near], np.full(near.sum(), disc)]))
         for r in names:
             rd = world.ranger(r, 0)
@@ -126,19 +133,22 @@ def run(n: int, seconds: float, seed: int, broadcast: float, radius: float, disc
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--robots", type=int, default=25, help="robots of the crowd (default 25: a 5 x 5 grid)")
-    ap.add_argument("--seconds", type=float, default=30.0, help="simulated seconds (default 30)")
+    ap.add_argument("--rows", type=int, default=5, help="rows of the thesis crowd that wander (default 5)")
+    ap.add_argument("--cols", type=int, default=6, help="columns of the thesis crowd that wander (default 6)")
+    ap.add_argument("--seconds", type=float, default=40.0, help="simulated seconds (default 40)")
     ap.add_argument("--seed", type=int, default=0, help="headings and filter seeds (default 0)")
     ap.add_argument("--broadcast", type=float, default=0.5, help="s between position broadcasts (default 0.5)")
     ap.add_argument("--radius", type=float, default=5.0, help="m: neighbours declared (default 5)")
     ap.add_argument("--disc", type=float, default=0.55, help="m: a neighbour's disc radius (default 0.55)")
     ap.add_argument("--speed", type=float, default=0.4, help="m/s the robots wander at (default 0.4)")
     a = ap.parse_args()
-    r = run(a.robots, a.seconds, a.seed, a.broadcast, a.radius, a.disc, a.speed)
+    if not (1 <= a.rows <= 10 and 1 <= a.cols <= 10):
+        ap.error(f"--rows {a.rows} and --cols {a.cols} must be 1..10 (the thesis crowd is 10 x 10)")
+    r = run(a.rows, a.cols, a.seconds, a.seed, a.broadcast, a.radius, a.disc, a.speed)
     for v in ("off", "on"):
         f = r[v]
         print(
-            f"bench=crowdloc robots={a.robots} seconds={a.seconds:g} seed={a.seed} known={v} "
+            f"bench=crowdloc robots={a.rows * a.cols} seconds={a.seconds:g} seed={a.seed} known={v} "
             f"within_0.5m={f['within']:.3f} p95_m={f['p95']:.2f} worst_m={f['worst']:.2f} "
             f"explained={f['explained']:.3f} wall_s={r['wall_s']:.0f}"
         )
