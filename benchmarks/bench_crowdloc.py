@@ -54,7 +54,9 @@ SAMPLE_EVERY = 0.5  # s, as the thesis swarm's monitor samples
 BOUND = 0.5  # m, the thesis swarm's verdict
 
 
-def run(rows: int, cols: int, seconds: float, seed: int, broadcast: float, radius: float, disc: float, speed: float) -> dict:
+def run(
+    rows: int, cols: int, seconds: float, seed: int, broadcast: float, radius: float, disc: float, speed: float
+) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "crowd.world"
         path.write_text(crowd_world(100, model="pioneer3at", bitmap=str(ROOT / "maps" / "hall.png"), seed=seed))
@@ -88,7 +90,7 @@ def run(rows: int, cols: int, seconds: float, seed: int, broadcast: float, radiu
         world.step()
         odo = {r: world.odometry(r) for r in names}
 
-        def pose(v, r):
+        def pose(v, r, odo=odo):
             e, o0 = est[v][r]
             return e if o0 is None else compose(e, relative(o0, odo[r]))
 

@@ -37,8 +37,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from agents.runtime import Agent, AgentHost  # noqa: E402
-from agents.services import SendPosition  # noqa: E402
 from agents.scenarios.swarm.thesis import ThesisSwarmAgent, ThesisSwarmMonitor  # noqa: E402
+from agents.services import SendPosition  # noqa: E402
 from rsal.client import Fabric  # noqa: E402
 from rsal.clock import use_sim_time  # noqa: E402
 from rsal.transport import TransportArgs  # noqa: E402
@@ -143,7 +143,7 @@ def main() -> None:
     a = ap.parse_args()
     if not (1 <= a.rows <= 10 and 1 <= a.cols <= 10):
         ap.error(f"--rows {a.rows} and --cols {a.cols} must be 1..10 (the thesis crowd is 10 x 10)")
-    for declare in ((False, True) if a.baseline else (True,)):
+    for declare in (False, True) if a.baseline else (True,):
         r = run(a.rows, a.cols, a.seconds, a.speedup, declare)
         rr, rw = r["contacts"]
         print(

@@ -62,8 +62,8 @@ from rsal.msgs import (
 )
 
 from ..config import ConfigError
-from ..nav.knownobstacles import parse_obstacles
 from ..driver import Driver, register
+from ..nav.knownobstacles import parse_obstacles
 from ..params import param, parse_params
 
 __all__ = ["AmclDriver"]
@@ -280,7 +280,9 @@ class AmclDriver(Driver):
                 raise RpcError(ErrorCode.BAD_REQUEST, str(e)) from None
             ttl = args.get("ttl", OBSTACLES_TTL)
             if not isinstance(ttl, int | float) or isinstance(ttl, bool) or not ttl > 0:
-                raise RpcError(ErrorCode.BAD_REQUEST, f"{addr} set_obstacles: ttl {ttl!r} must be a positive number of s")
+                raise RpcError(
+                    ErrorCode.BAD_REQUEST, f"{addr} set_obstacles: ttl {ttl!r} must be a positive number of s"
+                )
             self.filter.set_obstacles(discs)
             self._obstacles_until = self._odom_t + float(ttl)
             return {"obstacles": int(discs.shape[0])}

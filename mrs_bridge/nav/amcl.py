@@ -74,8 +74,8 @@ from rsal.geometry import compose_array, relative, wrap
 from .amclparams import AmclParams
 from .conebeam import CONE_RAYS, ConeMap, cone_beam_jit, cone_expected_jit
 from .distfilter import expected_ranges, unmodeled
-from .knownobstacles import explained_by_obstacles
 from .grid import NavGrid
+from .knownobstacles import explained_by_obstacles
 
 __all__ = [
     "CONE_RAYS",

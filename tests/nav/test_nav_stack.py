@@ -95,7 +95,9 @@ def test_localize_takes_known_obstacles_and_names_a_bad_one(procs, port, fabric_
     start_nav(procs, port, "vfh")
     fab = fabric_factory(port)
     robot, _ = nav_robot(fab)
-    assert robot.localize.set_obstacles([(0.0, 1.0, 0.4), (1.0, -1.0, 0.4)], ttl=2.0).result(timeout=5)["obstacles"] == 2
+    assert (
+        robot.localize.set_obstacles([(0.0, 1.0, 0.4), (1.0, -1.0, 0.4)], ttl=2.0).result(timeout=5)["obstacles"] == 2
+    )
     assert robot.localize.rpc("set_obstacles", obstacles=[])["obstacles"] == 0
     with pytest.raises(RpcError) as e:
         robot.localize.rpc("set_obstacles", obstacles=[[0.0, 1.0, 0.4], [1.0, "near", 0.4]])
