@@ -206,17 +206,22 @@ class Subsumption:
             self.p.side = side
 
     def guard_turn(self, s: Sectors, v: float, w: float) -> tuple[float, float]:
-        """``(v, w)`` without its turn when the turn would swing a corner of the body into
-        something (``sweep`` > 0): turning left the front-left corner sweeps the front-left
-        quarter and the rear-right corner the rear-right one; turning right the other two. While
-        one of those holds an obstacle within ``sweep`` the robot drives straight (or waits)."""
+        """``(v, w)`` without its turn when the turn would swing the body into something
+        (``sweep`` > 0). A turning rectangle enters new ground wherever its outline's distance
+        from the centre grows against the turn: turning left the front-left and rear-right
+        quarters (the long sides and the corners swinging out), and also the front-right and
+        rear-left corners' slivers beside the heading and the tail (the corner of a 3-AT, 39 deg
+        off its axis, swings to 0 deg through the sectors within 30 deg of the axis); turning right the
+        mirror image. While any of those holds an obstacle within ``sweep`` the robot drives
+        straight (or waits). (Checking the two quarters alone let a robot turning right in place
+        swing its front-left corner into a neighbour just ahead-left.)"""
         r = self.p.sweep
         if r <= 0 or w == 0.0:
             return (v, w)
         if w > 0:
-            near = min(s.min_between(0, 90), s.min_between(-180, -90))
+            near = min(s.min_between(-30, 90), s.min_between(-180, -90), s.min_between(150, 180))
         else:
-            near = min(s.min_between(-90, 0), s.min_between(90, 180))
+            near = min(s.min_between(-90, 30), s.min_between(90, 180), s.min_between(-180, -150))
         return (v, w) if near >= r else (v, 0.0)
 
     def _escape(self, s: Sectors) -> tuple[float, float]:

@@ -31,7 +31,11 @@ starts with global localization over all free space. ``odom_init``, ``enable_gui
 
 Operations: ``set_pose`` (``pose`` [x, y, yaw rad], ``cov`` 9 values) re-initialises around a pose
 (the thesis's fix when a robot cannot find itself), ``set_global`` spreads the particles over the
-map, ``get_particles`` returns ``particles`` (float32 x, y, yaw triplets) and ``weights``.
+map, ``get_particles`` returns ``particles`` (float32 x, y, yaw triplets) and ``weights``, and
+``set_obstacles`` (``obstacles`` [[x, y, radius], ...] m in the map frame, ``ttl`` s) declares known
+moving obstacles -- a swarm's neighbours where their broadcasts put them -- whose echoes the filter
+leaves out (:mod:`mrs_bridge.nav.knownobstacles`) until ``ttl`` s of the odometry's clock have passed
+or the next ``set_obstacles`` replaces them.
 """
 
 from __future__ import annotations
@@ -59,12 +63,14 @@ from rsal.msgs import (
 
 from ..config import ConfigError
 from ..driver import Driver, register
+from ..nav.knownobstacles import parse_obstacles
 from ..params import param, parse_params
 
 __all__ = ["AmclDriver"]
 
 RANGE_IFACES = ("laser", "ranger", "sonar")
 LOCALIZE_PERIOD = 0.5  # s: localize data at least this often, even without filter updates
+OBSTACLES_TTL = 1.5  # s: known obstacles are dropped this long after set_obstacles (default ttl)
 
 
 @dataclass(frozen=True)
@@ -131,6 +137,7 @@ class AmclDriver(Driver):
         self.skipped = 0
         self.update_ms = 0.0
         self._last_localize = -math.inf
+        self._obstacles_until = -math.inf  # odometry time the known obstacles expire at
 
     # ------------------------------------------------------------------ set-up
     def setup(self) -> None:
@@ -200,6 +207,8 @@ class AmclDriver(Driver):
             if self.range_cap is not None:
                 rmax = min(rmax, self.range_cap)
             t0 = time.perf_counter()
+            if self.filter.obstacles.shape[0] and scan.t > self._obstacles_until:
+                self.filter.set_obstacles(())  # stale: the neighbours have moved on
             width = self.beams.beam_width(scan)
             if self.filter.sensor(scan.ranges, bearings, origins, scan.range_min, rmax, beam_width=width):
                 self.update_ms = (time.perf_counter() - t0) * 1e3
@@ -245,10 +254,10 @@ class AmclDriver(Driver):
 
     # ------------------------------------------------------------------ operations
     def ops(self, addr):
-        return ["set_pose", "set_global", "get_particles"]
+        return ["set_pose", "set_global", "get_particles", "set_obstacles"]
 
     def on_rpc(self, addr, op, args):
-        if op in ("set_pose", "set_global", "get_particles") and self.filter is None:
+        if op in ("set_pose", "set_global", "get_particles", "set_obstacles") and self.filter is None:
             raise RpcError(ErrorCode.UNAVAILABLE, f"{addr}: no map yet (waiting for {self.map_addr})")
         if op == "set_pose":
             pose = get_vec(args, "pose", 3)
@@ -264,6 +273,19 @@ class AmclDriver(Driver):
             self.filter.init_global()
             self._est = None
             return {"particles": int(self.filter.particles.shape[0])}
+        if op == "set_obstacles":
+            try:
+                discs = parse_obstacles(args.get("obstacles"), f"{addr} set_obstacles obstacles")
+            except ValueError as e:
+                raise RpcError(ErrorCode.BAD_REQUEST, str(e)) from None
+            ttl = args.get("ttl", OBSTACLES_TTL)
+            if not isinstance(ttl, int | float) or isinstance(ttl, bool) or not ttl > 0:
+                raise RpcError(
+                    ErrorCode.BAD_REQUEST, f"{addr} set_obstacles: ttl {ttl!r} must be a positive number of s"
+                )
+            self.filter.set_obstacles(discs)
+            self._obstacles_until = self._odom_t + float(ttl)
+            return {"obstacles": int(discs.shape[0])}
         if op == "get_particles":
             q = self.filter.particles
             return {

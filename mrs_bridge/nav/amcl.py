@@ -75,6 +75,7 @@ from .amclparams import AmclParams
 from .conebeam import CONE_RAYS, ConeMap, cone_beam_jit, cone_expected_jit
 from .distfilter import expected_ranges, unmodeled
 from .grid import NavGrid
+from .knownobstacles import explained_by_obstacles
 
 __all__ = [
     "CONE_RAYS",
@@ -250,6 +251,11 @@ class Amcl:
         self._cones: ConeMap | None = None  # ray-casting grids of the cone beam model
         #: readings of the last scan the distance filter left out (``laser_unmodeled_margin``)
         self.n_unmodeled = 0
+        #: known moving obstacles, ``(m, 3)`` discs ``x, y, radius`` in the map frame
+        #: (:meth:`set_obstacles`); readings they explain are not scored against the map
+        self.obstacles = np.zeros((0, 3))
+        #: readings of the last scan the known obstacles explained and left out
+        self.n_explained = 0
         #: the power the last scan's likelihood was raised to (1: none; see ``pf_temper_ess``)
         self.temper = 1.0
         self.n_updates = 0
@@ -524,6 +530,16 @@ class Amcl:
         margin = self.params.laser_unmodeled_margin
         if rays > 1:  # sonar cones: rays beam-major (beam j: j*rays .. j*rays+rays-1)
             bi = (bi[:, None] + wi[:, None] * np.linspace(-0.5, 0.5, rays)).reshape(-1)
+        if self.obstacles.shape[0]:  # readings a known obstacle explains (before the distance filter:
+            # in a crowd most readings are cut short, and it gives up on the scan when most are)
+            keep = ~(self._explained(zi, b[idx], oi, width[idx]) & (zi < rmax[idx] - _MAX_RANGE_TOL))
+            self.n_explained = int(keep.size - keep.sum())
+            idx, zi, oi = idx[keep], zi[keep], oi[keep]
+            bi = bi.reshape(-1, rays)[keep].reshape(-1)
+            if idx.size == 0:
+                return False
+        else:
+            self.n_explained = 0
         if margin > 0.0:  # leave out readings cut short by what the map lacks
             keep = ~self._unmodeled(zi, bi, oi, rays, float(rmax[idx].max()), margin)
             self.n_unmodeled = int(keep.size - keep.sum())
@@ -544,6 +560,22 @@ class Amcl:
             self._resample()
             self._since_resample = 0
         return True
+
+    def set_obstacles(self, discs) -> None:
+        """Declare the known moving obstacles, ``(m, 3)`` discs ``x, y, radius`` (m, map frame), e.g.
+        the neighbours of a swarm where their broadcasts put them; they replace the earlier ones
+        (an empty list: none). Every later scan leaves out the readings they explain
+        (:mod:`.knownobstacles`)."""
+        d = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
+        if not np.isfinite(d).all() or (d[:, 2] <= 0).any():
+            raise ValueError("obstacles must be finite [x, y, radius] discs with radius > 0 (m)")
+        self.obstacles = d
+
+    def _explained(self, z, bearings, origins, width) -> np.ndarray:
+        """The readings (``bearings``: one per reading) the known obstacles explain, judged at the
+        weighted mean pose."""
+        mean, _ = _mean_cov(*self._weighed())
+        return explained_by_obstacles(mean, z, bearings, origins, width, self.obstacles)
 
     def _unmodeled(self, z, bearings, origins, rays: int, range_max: float, margin: float) -> np.ndarray:
         """The distance filter (:mod:`mrs_bridge.nav.distfilter`) at the weighted mean pose, while

@@ -98,6 +98,14 @@ class Localize(Device):
             raise ValueError("cov must be a 3x3 matrix or its diagonal (3 values)")
         return self.rpc("set_pose", timeout=timeout, pose=list(pose.as_tuple()), cov=[float(x) for x in c.ravel()])
 
+    def set_obstacles(self, discs, ttl: float = 1.5, timeout: float = 5.0):
+        """Declare known moving obstacles, ``discs`` ``[(x, y, radius), ...]`` (m, map frame): a
+        swarm's neighbours where their broadcasts put them. The localizer leaves out the readings
+        they explain until ``ttl`` s have passed or the next call replaces them. Returns the
+        request's future (a swarm declares at its broadcast rate and does not wait)."""
+        obstacles = [[float(x), float(y), float(r)] for x, y, r in discs]
+        return self.rpc_async("set_obstacles", timeout=timeout, obstacles=obstacles, ttl=float(ttl))
+
     def set_global(self, timeout: float = 5.0) -> dict:
         """Forget the pose: global localization over all free space."""
         return self.rpc("set_global", timeout=timeout)

@@ -112,6 +112,31 @@ def test_a_localize_pose_that_jumps_away_from_the_odometry_is_reseeded(monkeypat
     assert p.reseeds == 1
 
 
+def test_the_agent_declares_its_neighbours_broadcast_positions_to_its_localize_device():
+    from concurrent.futures import Future
+
+    class Loc(_Latest):
+        def rpc_async(self, op, **args):
+            super().rpc_async(op, **args)
+            f = Future()
+            f.set_result({"ok": True})
+            return f
+
+    class Hub:
+        def near(self, x, y, r, exclude=""):
+            self.asked = (x, y, r, exclude)
+            return np.array([[2.0, 1.0], [1.0, 4.0]])
+
+    a = ThesisSwarmAgent("swarm0", robot="r0")
+    a.localize, a._hub = Loc((1.0, 1.0, 0.0)), Hub()
+    a._obstacle_radius = 0.55
+    a.declare_neighbours()
+    assert a._hub.asked == (1.0, 1.0, a.obstacle_range, "r0")  # around its own localize pose, not itself
+    op, args = a.localize.calls[0]
+    assert op == "set_obstacles" and args["ttl"] == a.obstacle_ttl
+    assert args["obstacles"] == [[2.0, 1.0, 0.55], [1.0, 4.0, 0.55]]
+
+
 async def _run(ep: str, follow) -> dict:
     async with AgentHost.connect(TransportArgs(connect=[ep])) as host:
         await asyncio.to_thread(follow, host.session)

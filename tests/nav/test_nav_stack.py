@@ -89,6 +89,24 @@ def test_invalid_goals_are_reported_at_once(procs, port, fabric_factory):
     assert "map" in robot.planner.latest.message or "obstacle" in robot.planner.latest.message
 
 
+def test_localize_takes_known_obstacles_and_names_a_bad_one(procs, port, fabric_factory):
+    from rsal.msgs import ErrorCode, RpcError
+
+    start_nav(procs, port, "vfh")
+    fab = fabric_factory(port)
+    robot, _ = nav_robot(fab)
+    assert (
+        robot.localize.set_obstacles([(0.0, 1.0, 0.4), (1.0, -1.0, 0.4)], ttl=2.0).result(timeout=5)["obstacles"] == 2
+    )
+    assert robot.localize.rpc("set_obstacles", obstacles=[])["obstacles"] == 0
+    with pytest.raises(RpcError) as e:
+        robot.localize.rpc("set_obstacles", obstacles=[[0.0, 1.0, 0.4], [1.0, "near", 0.4]])
+    assert e.value.code == ErrorCode.BAD_REQUEST and "obstacles[1]" in str(e.value), str(e.value)
+    with pytest.raises(RpcError) as e:
+        robot.localize.rpc("set_obstacles", obstacles=[[0.0, 1.0, 0.4]], ttl=0)
+    assert e.value.code == ErrorCode.BAD_REQUEST and "ttl" in str(e.value), str(e.value)
+
+
 def test_rsal_goto_command(procs, port):
     start_nav(procs, port, "vfh")
     endpoint = f"tcp/127.0.0.1:{port}"

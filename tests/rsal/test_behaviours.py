@@ -399,6 +399,14 @@ def test_a_turn_never_swings_a_corner_towards_something_within_the_sweep():
     assert b.guard_turn(front_left, 0.0, -0.5) == (0.0, -0.5)
     assert b.guard_turn(fuse([polar((0.5, 45))]), 0.0, 0.5) == (0.0, 0.5)  # outside the sweep
     assert Subsumption().guard_turn(front_left, 0.0, 0.5) == (0.0, 0.5)  # sweep 0: off
+    # the corners beside the heading and the tail: turning right in place swings the front-left
+    # corner (39 deg off the axis of a 3-AT) towards the heading, and the rear-right one to the tail
+    ahead_left = fuse([polar((0.42, 20))])
+    assert b.guard_turn(ahead_left, 0.0, -0.5) == (0.0, 0.0)
+    assert b.guard_turn(fuse([polar((0.42, -20))]), 0.0, 0.5) == (0.0, 0.0)  # mirrored
+    assert b.guard_turn(fuse([polar((0.42, -170))]), 0.0, -0.5) == (0.0, 0.0)
+    assert b.guard_turn(fuse([polar((0.42, 170))]), 0.0, 0.5) == (0.0, 0.0)
+    assert b.guard_turn(fuse([polar((0.42, 65))]), 0.0, -0.5) == (0.0, -0.5)  # the left side recedes
     # wall-following a robot alongside on the left at 0.42 m: the controller turns right, away from
     # it, which would swing the rear-left corner into it: it drives straight on instead
     b.set_wallfollow(True, "left")

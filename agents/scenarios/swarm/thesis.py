@@ -18,7 +18,11 @@ the behaviour's body-aware checks (:func:`params_for_size`: the lane ahead and b
 swings a corner into something), the neighbours' broadcast positions filled into its sectors where
 the sonar ring's side gaps would miss them (echoes they explain are not walls to follow), and a
 guard that re-seeds the localize device when its pose jumps away from where the robot's own
-odometry carried it (:meth:`ThesisPioneer.guard`).
+odometry carried it (:meth:`ThesisPioneer.guard`). Its agent also declares the neighbours'
+broadcast positions to the localize device at the broadcast rate
+(:meth:`ThesisSwarmAgent.declare_neighbours`, ``rpc/set_obstacles``): AMCL leaves out the echoes
+they explain instead of scoring them against a map without robots
+(:mod:`mrs_bridge.nav.knownobstacles`).
 
 :class:`ThesisSwarmMonitor` is the :class:`~agents.scenarios.swarm.monitor.SwarmMonitor` with the
 two ground-truth checks the full stack needs: every contact of a robot with a wall or another robot,
@@ -264,6 +268,7 @@ class ThesisSwarmAgent(SwarmAgent):
         # inscribed and circumscribed radius
         robot.neighbour_radius = (width / 2.0 + math.hypot(length / 2.0, width / 2.0)) / 2.0
         robot.neighbours = lambda x, y, r: hub.near(x, y, r, exclude=name)
+        self._obstacle_radius = math.hypot(length / 2.0, width / 2.0) + self.obstacle_margin
         self.frame = "map"  # what it broadcasts and steers by
         return robot
 
@@ -273,6 +278,39 @@ class ThesisSwarmAgent(SwarmAgent):
             return super().pose_message()
         x, y, yaw = m.pose
         return SendPosition(self.robot, x, y, yaw, "map")
+
+    #: m: neighbours whose broadcast positions are declared to the localize device (the sonar's reach)
+    obstacle_range = 5.0
+    #: m added to a neighbour's circumscribed radius for the errors of both robots' poses
+    obstacle_margin = 0.15
+    obstacle_ttl = 1.5  # s: the localize device forgets them after this (two missed broadcasts)
+    _obstacle_radius = 0.55
+    _declare_failed = False
+
+    async def step(self) -> None:
+        sent = self.sent
+        await super().step()
+        if self.sent != sent:
+            self.declare_neighbours()
+
+    def declare_neighbours(self) -> None:
+        """Tell the robot's localize device where its neighbours are, as their broadcasts put them
+        (``set_obstacles``, at the broadcast rate): AMCL leaves out the sonar echoes they explain
+        instead of scoring them against a map that has no robots on it (thesis 4.2.3: the positions
+        are broadcast for the swarm's use; :mod:`mrs_bridge.nav.knownobstacles`)."""
+        m = self.localize.latest if self.localize is not None else None
+        if m is None or self._hub is None:
+            return
+        near = self._hub.near(m.pose[0], m.pose[1], self.obstacle_range, exclude=self.robot)
+        discs = [[float(x), float(y), self._obstacle_radius] for x, y in near.tolist()]
+        fut = self.localize.rpc_async("set_obstacles", obstacles=discs, ttl=self.obstacle_ttl)
+        fut.add_done_callback(self._declared)
+
+    def _declared(self, fut) -> None:  # a zenoh or executor thread: only logs
+        e = fut.exception()
+        if e is not None and not self._declare_failed:
+            self._declare_failed = True  # once per agent: the next broadcasts try again
+            log.warning("%s: %s:%s rpc/set_obstacles failed: %s", self.id, self.robot, LOCALIZE, e)
 
 
 @agent_class("ThesisSwarmMonitor")
