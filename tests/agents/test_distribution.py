@@ -179,7 +179,8 @@ def test_dispersion_sends_distinct_targets_to_navigating_agents_only(floor):
     async def main():
         ep = f"tcp/127.0.0.1:{free_port()}"
         async with AgentHost.connect(TransportArgs(listen=[ep])) as host:
-            navs = [FakeNav(f"nav{i}", robot=f"r{i}", start=s) for i, s in enumerate(STARTS)]
+            # stand-ins at 16 m/s: the farthest target is 49 m away on the floor map
+            navs = [FakeNav(f"nav{i}", robot=f"r{i}", start=s, speed=16.0) for i, s in enumerate(STARTS)]
             other = Bystander("other", robot="r9", start=(-5.0, 1.75))
             for a in [*navs, other]:
                 await host.start(a)
@@ -207,7 +208,8 @@ def test_killed_agent_is_dropped_and_its_target_reassigned(floor):
     async def main():
         ep = f"tcp/127.0.0.1:{free_port()}"
         async with AgentHost.connect(TransportArgs(listen=[ep])) as host:
-            navs = [FakeNav(f"nav{i}", robot=f"r{i}", start=s, speed=1.0) for i, s in enumerate(STARTS)]
+            # 4 m/s: every target is 8 m or more away, so the victim is killed seconds before it could arrive
+            navs = [FakeNav(f"nav{i}", robot=f"r{i}", start=s, speed=4.0) for i, s in enumerate(STARTS)]
             for a in navs:
                 await host.start(a)
             verdicts: list[Outcome] = []
