@@ -19,7 +19,7 @@ import pytest
 
 from agents.dispatch.patrol import PatrolAgent, revisit_gaps
 from rsal.msgs import RpcError
-from tests.conftest import ROOT, SPEEDUP_NAV, rsal_cmd, wait_until
+from tests.conftest import ROOT, SPEEDUP, rsal_cmd, wait_until
 
 SCENARIO = str(ROOT / "deploy" / "scenarios" / "patrol.yaml")
 ROUTES = [
@@ -55,7 +55,7 @@ def test_bad_routes_are_one_line(routes, words):
 @pytest.mark.timeout(900)
 def test_patrol_two_robots_one_charger(procs, port, fabric_factory):
     ep = f"tcp/127.0.0.1:{port}"
-    run = procs(rsal_cmd("run", SCENARIO, "--app", "two", "--listen", ep, "--speedup", SPEEDUP_NAV))
+    run = procs(rsal_cmd("run", SCENARIO, "--app", "two", "--listen", ep, "--speedup", SPEEDUP))
     fab = fabric_factory(port)
     node = fab.node("sim:*:*", "r0:*:*", "r1:*:*")
     node.wait_for("sim:simulation:0", 1, 120)
