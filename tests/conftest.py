@@ -159,6 +159,12 @@ def fabric_factory():
 # Scenario tests run the simulator this many times faster than real time; their agents follow the
 # simulation's clock (sim_time), so they behave as at real time.
 SPEEDUP = "3"
+# Scenario tests whose robots are moved only by the navigation stack inside the simulator's process
+# (goals to Wavefront, VFH on each odometry message) run faster: no commander in another process has
+# to refresh a velocity within the bases' 0.5 simulated seconds of cmd_timeout (docs/protocol.md,
+# "Command timeout"), so the speed-up is bounded only by what the simulator's process keeps up with;
+# when it cannot, the simulation runs slower and everything follows it (docs/concepts.md, "One clock").
+SPEEDUP_NAV = "6"
 
 
 @pytest.fixture

@@ -32,7 +32,7 @@ from agents.runtime import Agent, AgentHost
 from agents.verdict import ARRIVE_TOLERANCE
 from rsal.estop import estop
 from rsal.transport import TransportArgs
-from tests.conftest import MAPS, ROOT, SPEEDUP, LoopThread, rsal_cmd, wait_until
+from tests.conftest import MAPS, ROOT, SPEEDUP_NAV, LoopThread, rsal_cmd, wait_until
 from tests.truth import Truth
 
 WORLD = str(MAPS / "dispatch.world")
@@ -82,7 +82,7 @@ def _dist(p, q) -> float:
 def test_dispatch_bids_charging_and_rebid_after_a_killed_robot(procs, port, fabric_factory):
     ep = f"tcp/127.0.0.1:{port}"
     env = {**os.environ, "RSAL_SIM_TIME": "sim"}
-    procs(rsal_cmd("sim", WORLD, "--nav", "vfh", "--speedup", SPEEDUP, "--truth", "--listen", ep))
+    procs(rsal_cmd("sim", WORLD, "--nav", "vfh", "--speedup", SPEEDUP_NAV, "--truth", "--listen", ep))
     fab = fabric_factory(port)
     truth = Truth(fab.session, ["r0", "r1"])
     wait_until(truth.ready, 60, "true poses from rsal sim --truth")

@@ -36,7 +36,7 @@ from rsal.msgs import MapData
 from rsal.transport import TransportArgs
 from simulator.loader import load_world
 from simulator.world import World
-from tests.conftest import MAPS, ROOT, SPEEDUP, free_port, rsal_cmd, wait_until
+from tests.conftest import MAPS, ROOT, SPEEDUP_NAV, free_port, rsal_cmd, wait_until
 from tests.truth import Truth
 
 STARTS = [(-20.5, 5.0), (-14.0, 5.5), (-21.0, 8.0)]  # r0..r2 of maps/distribution.world
@@ -179,7 +179,8 @@ def test_dispersion_sends_distinct_targets_to_navigating_agents_only(floor):
     async def main():
         ep = f"tcp/127.0.0.1:{free_port()}"
         async with AgentHost.connect(TransportArgs(listen=[ep])) as host:
-            navs = [FakeNav(f"nav{i}", robot=f"r{i}", start=s) for i, s in enumerate(STARTS)]
+            # stand-ins at 16 m/s: the farthest target is 49 m away on the floor map
+            navs = [FakeNav(f"nav{i}", robot=f"r{i}", start=s, speed=16.0) for i, s in enumerate(STARTS)]
             other = Bystander("other", robot="r9", start=(-5.0, 1.75))
             for a in [*navs, other]:
                 await host.start(a)
@@ -207,7 +208,8 @@ def test_killed_agent_is_dropped_and_its_target_reassigned(floor):
     async def main():
         ep = f"tcp/127.0.0.1:{free_port()}"
         async with AgentHost.connect(TransportArgs(listen=[ep])) as host:
-            navs = [FakeNav(f"nav{i}", robot=f"r{i}", start=s, speed=1.0) for i, s in enumerate(STARTS)]
+            # 4 m/s: every target is 8 m or more away, so the victim is killed seconds before it could arrive
+            navs = [FakeNav(f"nav{i}", robot=f"r{i}", start=s, speed=4.0) for i, s in enumerate(STARTS)]
             for a in navs:
                 await host.start(a)
             verdicts: list[Outcome] = []
@@ -239,11 +241,8 @@ def test_killed_agent_is_dropped_and_its_target_reassigned(floor):
 def test_three_navagents_reach_distinct_targets_with_rsal_run(procs):
     ep = f"tcp/127.0.0.1:{free_port()}"
     scenario = str(ROOT / "deploy" / "scenarios" / "distribution.yaml")
-    run = procs(
-        rsal_cmd(
-            "run", scenario, "--app", "three", "--listen", ep, "--set", "within=[-31, -8, 2, 12]", "--speedup", SPEEDUP
-        ),
-    )
+    args = ("--app", "three", "--listen", ep, "--set", "within=[-31, -8, 2, 12]", "--speedup", SPEEDUP_NAV)
+    run = procs(rsal_cmd("run", scenario, *args))
     wait_until(lambda: not run.alive(), 600, "the distribution run to end")
     out = run.output()
     print(out[-3000:])
@@ -266,7 +265,7 @@ def test_killed_navagent_is_dropped_and_its_target_reached_by_another(procs, sim
     ep = f"tcp/127.0.0.1:{free_port()}"
     world = str(MAPS / "distribution.world")
     nav = ["--nav", "vfh", "--nav-robots", "r0,r1,r2"]
-    procs(rsal_cmd("sim", world, "--listen", ep, *nav, "--speedup", SPEEDUP, "--truth"))
+    procs(rsal_cmd("sim", world, "--listen", ep, *nav, "--speedup", SPEEDUP_NAV, "--truth"))
 
     async def main():
         async with AgentHost.connect(TransportArgs(connect=[ep])) as host:

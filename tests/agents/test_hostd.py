@@ -130,7 +130,15 @@ def test_tolerate_lost_reports_the_lost_agents_and_runs_on(tmp_path, procs, fabr
 
 def test_a_missing_daemon_is_one_line_naming_it_and_the_fix(tmp_path, procs, fabric):
     ep, _ = fabric
+    # four independent refusals, started together (each is a process start and a look at the fabric)
     run = procs(rsal_cmd("run", str(wander(tmp_path, machine="robot9")), "--connect", ep))
+    (tmp_path / "own").mkdir()
+    alone = procs(rsal_cmd("run", str(wander(tmp_path / "own"))))
+    bad_flags = (
+        (["--name", "a b"], "rsal host: --name 'a b' must be letters, digits"),
+        (["--name", "x", "--host-config", str(tmp_path / "none.toml")], "none.toml: cannot read it"),
+    )
+    daemons = [(procs(rsal_cmd("host", *argv)), text) for argv, text in bad_flags]
     out = finished(run, 60, "rsal run to give up")
     assert run.p.returncode == 1, out
     line = (
@@ -141,19 +149,14 @@ def test_a_missing_daemon_is_one_line_naming_it_and_the_fix(tmp_path, procs, fab
     assert "Traceback" not in out
     assert "started sim" not in out  # checked before anything starts
     # without a fabric to join (a fresh port of its own), no daemon can be there: said at once, exit 2
-    run = procs(rsal_cmd("run", str(wander(tmp_path))))
-    out = finished(run, 30, "rsal run to refuse")
-    assert run.p.returncode == 2, out
+    out = finished(alone, 30, "rsal run to refuse")
+    assert alone.p.returncode == 2, out
     assert out.strip().endswith(
         "places agents on machine 'robot1', whose host daemon joins a running fabric: give --connect EP "
         "(e.g. a router's, rsal router --listen EP) or --config FILE"
     ), out
     # the daemon's own bad flags and files: one line, exit 2
-    for argv, text in (
-        (["--name", "a b"], "rsal host: --name 'a b' must be letters, digits"),
-        (["--name", "x", "--host-config", str(tmp_path / "none.toml")], "none.toml: cannot read it"),
-    ):
-        d = procs(rsal_cmd("host", *argv))
+    for d, text in daemons:
         out = finished(d, 30, "rsal host to refuse")
         assert d.p.returncode == 2 and text in out and len(out.strip().splitlines()) == 1, out
 

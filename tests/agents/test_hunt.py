@@ -35,7 +35,7 @@ from rsal.clock import Clock, set_clock
 from rsal.data import Position
 from rsal.robot import RobotError
 from rsal.transport import TransportArgs, open_session
-from tests.conftest import MAPS, ROOT, SPEEDUP, LoopThread, free_port, rsal_cmd, wait_until
+from tests.conftest import MAPS, ROOT, SPEEDUP, SPEEDUP_NAV, LoopThread, free_port, rsal_cmd, wait_until
 from tests.truth import Truth
 
 # How much nearer than an award's winner a losing hunter may truly be: both bids are AMCL poses
@@ -74,11 +74,11 @@ class Observer(Agent):
 @pytest.fixture
 def hunt(procs, sim_time):
     """Start ``rsal sim WORLD --nav vfh --nav-robots ... --truth``; yields ``start(world, nav_robots,
-    robots)`` which returns an agent host connected to it, its observer and the ground truth of
-    ``robots``."""
+    robots, speedup=SPEEDUP)`` which returns an agent host connected to it, its observer and the
+    ground truth of ``robots``."""
     state: dict = {}
 
-    def start(world: str, nav_robots: str, robots: list[str]):
+    def start(world: str, nav_robots: str, robots: list[str], speedup: str = SPEEDUP):
         ep = f"tcp/127.0.0.1:{free_port()}"
         sim = procs(
             rsal_cmd(
@@ -91,7 +91,7 @@ def hunt(procs, sim_time):
                 "--nav-robots",
                 nav_robots,
                 "--speedup",
-                SPEEDUP,
+                speedup,
                 "--truth",
             )
         )
@@ -222,7 +222,8 @@ def test_scenario_file_parses_and_matches_the_classes():
 # ---------------------------------------------------------------------------- with the simulator
 @pytest.mark.timeout(240)
 def test_nav_agent_goes_to_new_goal_reports_arrived_and_unreachable(hunt):
-    sim, lt, host, obs, truth = hunt("hunt.world", "r1,r2", ["r1"])
+    # only r1's navigation stack, in the simulator's process, drives: at SPEEDUP_NAV
+    sim, lt, host, obs, truth = hunt("hunt.world", "r1,r2", ["r1"], speedup=SPEEDUP_NAV)
     nav = NavAgent("nav1", robot="r1", startup_timeout=60)
     _start_all(lt, host, [nav])
 
