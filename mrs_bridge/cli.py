@@ -241,7 +241,10 @@ def _sim(args: argparse.Namespace) -> int:
     if args.nav_part is not None:  # a navigation server: no simulator here
         i, n = args.nav_part
         robots = sorted({d.provides[0].node for d in cfg.drivers}, key=world.robot_names.index)
-        print(f"[nav] {args.world}: part {i}/{n}: navigation stacks of {len(robots)} robot(s) ({', '.join(robots)})", flush=True)
+        print(
+            f"[nav] {args.world}: part {i}/{n}: navigation stacks of {len(robots)} robot(s) ({', '.join(robots)})",
+            flush=True,
+        )
         return run_server(cfg, args)
     sp = "as fast as possible" if math.isinf(spec.speedup) else f"{spec.speedup:g}x real time"
     print(f"[sim] {args.world}: {len(world.robot_names)} robots ({', '.join(world.robot_names)}), {sp}", flush=True)

@@ -69,7 +69,12 @@ class NavGrid:
         """:meth:`from_map`, but one grid per distinct map in this process (same cells, resolution
         and origin: the same object), kept while any user holds it."""
         c = np.ascontiguousarray(np.asarray(m.cells, dtype=np.int8))
-        key = (hashlib.blake2b(c.tobytes(), digest_size=16).digest(), c.shape, float(m.resolution), tuple(map(float, m.origin)))
+        key = (
+            hashlib.blake2b(c.tobytes(), digest_size=16).digest(),
+            c.shape,
+            float(m.resolution),
+            tuple(map(float, m.origin)),
+        )
         with _shared_lock:
             g = _shared.get(key)
             if g is None:

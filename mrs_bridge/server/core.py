@@ -85,7 +85,13 @@ class DeviceServer(_Intake, _Rpc, _Devices):
         self._stop = threading.Event()
         self._warned: dict[str, tuple[float, int]] = {}
         self.stats = {
-            "cmd": 0, "rpc": 0, "rejected": 0, "published": 0, "too_large": 0, "dropped": 0, "busy": 0,
+            "cmd": 0,
+            "rpc": 0,
+            "rejected": 0,
+            "published": 0,
+            "too_large": 0,
+            "dropped": 0,
+            "busy": 0,
             "superseded": 0,  # data samples replaced by a newer one while waiting (latest wins)
         }
         self._latest: dict = {}  # (id(slot), device) -> the newest waiting data payload (intake)
