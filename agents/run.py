@@ -246,6 +246,8 @@ class Runner:
             flags += ["--nav", s.nav]
         if s.nav_robots:
             flags += ["--nav-robots", ",".join(s.nav_robots)]
+        if s.nav_servers:
+            flags += ["--nav-servers", str(s.nav_servers)]
         speedup = getattr(self.args, "speedup", None) or s.speedup
         if speedup is not None:
             flags += ["--speedup", f"{speedup:g}"]
@@ -268,9 +270,22 @@ class Runner:
         """Whether every device the rehearsed robot is awaited by is alive."""
         return all(f"rsal/{d}" in self.devices for d in self.app.rehearse.devices)
 
+    def _start_nav_servers(self) -> None:
+        """The simulator's ``nav_servers``: ``rsal sim WORLD --nav .. --nav-part I/N`` each, servers
+        that require the robots' devices over the fabric (stopped with the other servers)."""
+        s = self.app.simulator
+        for i in range(s.nav_servers if s is not None else 0):
+            flags = ["--nav", s.nav] + (["--nav-robots", ",".join(s.nav_robots)] if s.nav_robots else [])
+            if s.seed is not None:
+                flags += ["--seed", str(s.seed)]
+            flags += ["--nav-part", f"{i}/{s.nav_servers}", *self._member_flags()]
+            argv = [sys.executable, "-m", "rsal.cli", "sim", str(s.world), *flags]
+            self._start(f"nav{i}", "server", argv, " ".join(["rsal sim", _rel(s.world), *flags]))
+
     def _start_rest(self) -> None:
         if self.truth is not None:
             self.truth.record_homes()  # where the collectors truly start, before they move
+        self._start_nav_servers()
         for i, cfg in enumerate(self.app.servers):
             name = "serve" if len(self.app.servers) == 1 else f"serve{i}"
             flags = self._member_flags()

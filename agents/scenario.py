@@ -63,7 +63,7 @@ DEFAULT_TIMEOUT = 300.0
 
 _TOP = ("scenario", "description", "arguments", "agent_types", "applications")
 _APP = ("description", "simulator", "rehearse", "servers", "agents", "end")
-_SIM = ("world", "nav", "nav_robots", "speedup", "seed")
+_SIM = ("world", "nav", "nav_robots", "nav_servers", "speedup", "seed")
 _REHEARSE = ("world", "robot", "nav", "pioneer", "laser", "node", "seed")
 _PIONEERS = ("P2DX", "P3AT")  # mrs_bridge.emulators.p2os.DIST_CONV
 _LASERS = ("URG-04LX", "UTM-30LX")  # mrs_bridge.emulators.urg.SENSORS
@@ -85,6 +85,8 @@ class SimulatorSpec:
     nav_robots: tuple[str, ...] = ()
     speedup: float | None = None
     seed: int | None = None
+    #: navigation stacks in this many extra servers (``rsal sim .. --nav-part I/N``), 0: in the simulator's
+    nav_servers: int = 0
 
 
 @dataclass(frozen=True)
@@ -380,7 +382,10 @@ def _simulator(c: _Ctx, where: str, raw: Any) -> SimulatorSpec:
         raise c.fail(f"{where}.nav_robots", "needs 'nav' (vfh, nd or snd) to choose the local planner")
     speedup = None if m.get("speedup") is None else c.number(m["speedup"], f"{where}.speedup")
     seed = None if m.get("seed") is None else c.whole(m["seed"], f"{where}.seed", lo=0)
-    return SimulatorSpec(world, nav, tuple(robots), speedup, seed)
+    servers = 0 if m.get("nav_servers") is None else c.whole(m["nav_servers"], f"{where}.nav_servers", lo=0)
+    if servers and nav is None:
+        raise c.fail(f"{where}.nav_servers", "needs 'nav' (vfh, nd or snd): the servers run navigation stacks")
+    return SimulatorSpec(world, nav, tuple(robots), speedup, seed, servers)
 
 
 def _rehearse(c: _Ctx, where: str, raw: Any, sim: SimulatorSpec | None) -> RehearsalSpec:

@@ -9,6 +9,12 @@ robot model, whose devices live on the node named after the model (``r0:position
 devices a robot has comes from its world model (:func:`mrs_bridge.drivers.sim.robot_devices`).
 ``--node NAME`` puts the simulation and map devices on another node, so that two simulators (e.g.
 a virtual world and the stand-in for reality of a mixed-reality run, thesis 4.3) share one fabric.
+The navigation stacks of ``--nav`` may run in other processes, as Player ran a planner server that
+required ``6665:position2d:0`` (appendix A.3, ``planner_6666.cfg``): ``--nav-servers N`` leaves them
+out of the simulator's server, and ``rsal sim WORLD --nav .. --nav-part I/N`` is a server with no
+simulator that runs the stacks of every N-th robot from the I-th (robots ``I, I+N, ...`` of the
+world's order), requiring each robot's devices and the map over the fabric; ``rsal run`` starts
+them for a scenario's ``nav_servers`` (docs/scenarios.md). Two cores then share the load.
 Both stop cleanly on SIGTERM or Ctrl-C: motors stopped, tokens withdrawn, session closed.
 """
 
@@ -101,6 +107,8 @@ def sim_config(
     nav_robots: list[str] | None = None,
     node: str = "sim",
     truth: bool = False,
+    nav_part: tuple[int, int] | None = None,
+    nav_elsewhere: bool = False,
 ) -> ServerConfig:
     """The server configuration of ``rsal sim`` for a loaded :class:`simulator.world.World`.
 
@@ -112,6 +120,9 @@ def sim_config(
     ``sim``). With ``truth`` every robot also gets
     ``position2d:3``, its ground-truth pose in the world frame (a ``sim`` driver with ``localization =
     "gps"``, describe frame ``gps``): what ``rsal record`` records as the reference of a run.
+    ``nav_elsewhere``: the navigation stacks are left out (other servers run them). ``nav_part``
+    ``(i, n)``: only the navigation stacks of robots ``i, i+n, ...`` of those that get one, and no
+    simulation, map or robot devices (they are required over the fabric).
     """
     from rsal.keys import DeviceAddr, parse_device
 
@@ -129,14 +140,16 @@ def sim_config(
         )
 
     map_addr = f"{node}:map:0"
-    drivers = [block("simulation", node, [("simulation", 0)])]
-    if map_device and world.grid is not None:
-        drivers.append(block("simmap", node, [("map", 0)]))
-    for name in world.robot_names:
-        drivers.append(block("sim", name, robot_devices(world.model_spec(name)), model=name))
-        if truth:
-            drivers.append(block("sim", name, [("position2d", TRUTH_INDEX)], model=name, localization="gps"))
-    if nav:
+    drivers = []
+    if nav_part is None:
+        drivers.append(block("simulation", node, [("simulation", 0)]))
+        if map_device and world.grid is not None:
+            drivers.append(block("simmap", node, [("map", 0)]))
+        for name in world.robot_names:
+            drivers.append(block("sim", name, robot_devices(world.model_spec(name)), model=name))
+            if truth:
+                drivers.append(block("sim", name, [("position2d", TRUTH_INDEX)], model=name, localization="gps"))
+    if nav and not nav_elsewhere:
         if world.grid is None or not map_device:
             raise ConfigError(f"{source}: --nav needs the world's floorplan served as {map_addr}")
         wanted = set(nav_robots) if nav_robots else None
@@ -146,6 +159,7 @@ def sim_config(
             unknown = sorted(wanted - set(world.robot_names))
             if unknown:
                 raise ConfigError(f"{source}: --nav-robots names unknown robot(s) {', '.join(unknown)}")
+        stacked = []  # the robots that get a navigation stack, in the world's order
         for name in world.robot_names:
             spec = world.model_spec(name)
             has_laser = any(r.kind != "sonar" for r in spec.rangers)
@@ -155,6 +169,12 @@ def sim_config(
                 continue
             if not has_laser and wanted is None:
                 continue
+            stacked.append(name)
+        if nav_part is not None:
+            stacked = stacked[nav_part[0] :: nav_part[1]]
+        for name in stacked:
+            spec = world.model_spec(name)
+            has_laser = any(r.kind != "sonar" for r in spec.rangers)
             rng = f"{name}:laser:0" if has_laser else f"{name}:sonar:0"
             x, y, a = world.get_pose(name)
             drivers.append(
@@ -200,6 +220,9 @@ def _sim(args: argparse.Namespace) -> int:
     except SimulatorError as e:
         print(f"rsal sim: {e}", file=sys.stderr)
         return 1
+    if (args.nav_part or args.nav_servers) and not args.nav:
+        print("rsal sim: --nav-part and --nav-servers need --nav (vfh, nd or snd): add it", file=sys.stderr)
+        return 1
     try:
         cfg = sim_config(
             world,
@@ -209,10 +232,20 @@ def _sim(args: argparse.Namespace) -> int:
             nav_robots=args.nav_robots,
             node=args.node,
             truth=args.truth,
+            nav_part=args.nav_part,
+            nav_elsewhere=bool(args.nav_servers),
         )
     except ConfigError as e:
         print(f"rsal sim: {e}", file=sys.stderr)
         return 1
+    if args.nav_part is not None:  # a navigation server: no simulator here
+        i, n = args.nav_part
+        robots = sorted({d.provides[0].node for d in cfg.drivers}, key=world.robot_names.index)
+        print(
+            f"[nav] {args.world}: part {i}/{n}: navigation stacks of {len(robots)} robot(s) ({', '.join(robots)})",
+            flush=True,
+        )
+        return run_server(cfg, args)
     sp = "as fast as possible" if math.isinf(spec.speedup) else f"{spec.speedup:g}x real time"
     print(f"[sim] {args.world}: {len(world.robot_names)} robots ({', '.join(world.robot_names)}), {sp}", flush=True)
     t0 = time.monotonic()
@@ -226,6 +259,17 @@ def _sim(args: argparse.Namespace) -> int:
         flush=True,
     )
     return rc
+
+
+def _part(text: str) -> tuple[int, int]:
+    """``I/N`` with ``0 <= I < N``."""
+    try:
+        i, n = (int(v) for v in text.split("/"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not I/N (e.g. 0/2: the first of two parts)") from None
+    if not 0 <= i < n:
+        raise argparse.ArgumentTypeError(f"{text!r}: I must be 0..N-1 (e.g. 0/2 and 1/2)")
+    return i, n
 
 
 def _node_name(text: str) -> str:
@@ -277,6 +321,21 @@ def register_sim(sub) -> None:
         metavar="R0,R1",
         help="robots that get the navigation stack (default: every robot with a laser; '*': every robot "
         "with a laser or sonar)",
+    )
+    split = p.add_mutually_exclusive_group()
+    split.add_argument(
+        "--nav-servers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="leave the navigation stacks to N other processes ('rsal sim WORLD --nav .. --nav-part I/N')",
+    )
+    split.add_argument(
+        "--nav-part",
+        type=_part,
+        metavar="I/N",
+        help="run no simulator: only the navigation stacks of robots I, I+N, ... requiring their devices "
+        "over the fabric from a simulator started with --nav-servers N",
     )
     p.add_argument(
         "--truth",

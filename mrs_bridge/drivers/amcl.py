@@ -160,7 +160,7 @@ class AmclDriver(Driver):
             from ..nav.grid import NavGrid
 
             m = MapData.from_dict(result)
-            grid = NavGrid.from_map(m)
+            grid = NavGrid.shared(m)  # one per map in the server, its derived grids too
             self.map_info = (m.width, m.height, m.resolution)
             try:
                 self.filter = Amcl(grid, self.params)

@@ -136,7 +136,7 @@ class WavefrontDriver(Driver):
             m = MapData.from_dict(result)
             from ..nav.grid import NavGrid
 
-            self._grid = NavGrid.from_map(m)
+            self._grid = NavGrid.shared(m)  # one per map in the server
             self.map_info = (m.width, m.height, m.resolution)
             self._build()
         elif op == "describe":
@@ -163,13 +163,19 @@ class WavefrontDriver(Driver):
         from ..nav.wavefront import Wavefront
 
         t0 = time.perf_counter()
-        planner = Wavefront(
-            self._grid,
-            robot_radius=self.robot_radius,
-            safety_dist=self.safety_dist,
-            max_radius=self.max_radius,
-            dist_penalty=self.dist_penalty,
-        )
+        # One configuration space per map and robot size in the server (NavGrid.shared), each
+        # planner a clone with its own search state: 100 robots of one size share one.
+        key = ("wavefront", self.robot_radius, self.safety_dist, self.max_radius, self.dist_penalty)
+        planner = self._grid.derived(
+            key,
+            lambda: Wavefront(
+                self._grid,
+                robot_radius=self.robot_radius,
+                safety_dist=self.safety_dist,
+                max_radius=self.max_radius,
+                dist_penalty=self.dist_penalty,
+            ),
+        ).clone()
         self.exec = Executive(
             planner,
             distance_epsilon=self.distance_epsilon,

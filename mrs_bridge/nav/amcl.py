@@ -394,6 +394,10 @@ class Amcl:
 
     # ------------------------------------------------------------------ measurement
     def _surface_distance(self) -> np.ndarray:
+        """:meth:`_surface_distance_of` the grid, computed once per grid (:meth:`NavGrid.derived`)."""
+        return self.grid.derived("amcl.surface", self._surface_distance_of)
+
+    def _surface_distance_of(self) -> np.ndarray:
         """Metres from each cell centre to the nearest obstacle surface, outside and inside obstacles
         (unknown cells count as obstacles).
 
@@ -457,9 +461,9 @@ class Amcl:
         )
 
     def _cone_map(self) -> ConeMap:
-        if self._cones is None:
+        if self._cones is None:  # one per grid: filters on a shared grid share it (read-only)
             g = self.grid
-            self._cones = ConeMap(~g.free, g.resolution, g.origin)
+            self._cones = g.derived("amcl.cones", lambda: ConeMap(~g.free, g.resolution, g.origin))
         return self._cones
 
     def _cone_log_likelihood(self, z, bearings, origins, rays: int, range_max: float) -> np.ndarray:

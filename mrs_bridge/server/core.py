@@ -84,7 +84,18 @@ class DeviceServer(_Intake, _Rpc, _Devices):
         self.devices: dict[DeviceAddr, _Device] = {}
         self._stop = threading.Event()
         self._warned: dict[str, tuple[float, int]] = {}
-        self.stats = {"cmd": 0, "rpc": 0, "rejected": 0, "published": 0, "too_large": 0, "dropped": 0, "busy": 0}
+        self.stats = {
+            "cmd": 0,
+            "rpc": 0,
+            "rejected": 0,
+            "published": 0,
+            "too_large": 0,
+            "dropped": 0,
+            "busy": 0,
+            "superseded": 0,  # data samples replaced by a newer one while waiting (latest wins)
+        }
+        self._latest: dict = {}  # (id(slot), device) -> the newest waiting data payload (intake)
+        self._latest_lock = threading.Lock()
         self._reported = (0, 0, 0)  # too_large, dropped, busy already warned about
         self._failed = 0  # drivers that failed (the loop checks whether any still works)
         self._pub_cache: dict[int, tuple[DeviceAddr, Any]] = {}  # id(addr) -> (addr, publisher's put)

@@ -7,6 +7,13 @@ thread then takes each item to :meth:`_Intake._handle`, which decodes it once, w
 the interface is known (:func:`rsal.interfaces.cmd_types`, :func:`rsal.interfaces.decode_data`),
 and hands it to the driver. Bad input changes nothing and is warned about at a limited rate.
 
+A required device's ``data`` is a state stream: latest wins (zenoh's ``RingChannel`` for sensor
+streams). While a sample of one (driver, device) still waits in the inbox, a newer one replaces
+its payload in place instead of queueing behind it, so a server that falls behind (100 navigation
+stacks on one core) skips stale scans and poses instead of filling its inbox and dropping whatever
+arrives next (commands, replies and events included). A server that keeps up sees every sample.
+``event`` samples stay in order, every one delivered.
+
 :class:`_Intake` is a mixin of :class:`~mrs_bridge.server.DeviceServer`: it uses the server's
 ``inbox``, ``devices``, ``stats``, ``_call``, ``_setup`` and ``_warn``.
 """
@@ -85,6 +92,19 @@ class _Intake:
         if len(payload) > limit:  # refused before it is copied or decoded
             self.stats["too_large"] += 1
             return
+        if head[0] == "input" and head[3] == "data":  # latest wins while one waits
+            key = (id(head[1]), head[2])
+            data = payload.to_bytes()
+            with self._latest_lock:
+                waiting = key in self._latest
+                self._latest[key] = data
+            if waiting:
+                self.stats["superseded"] += 1
+                return
+            if not self._offer(("latest", head[1], head[2], key)):
+                with self._latest_lock:
+                    self._latest.pop(key, None)
+            return
         self._offer((*head, payload.to_bytes()))
 
     def _on_query(self, addr: DeviceAddr, query) -> None:
@@ -120,8 +140,14 @@ class _Intake:
             self._on_cmd(item[1], item[2])
         elif kind == "rpc":
             self._on_rpc(item[1], item[2])
-        elif kind == "input":
-            _, slot, addr, channel, payload = item
+        elif kind in ("input", "latest"):
+            if kind == "latest":
+                _, slot, addr, key = item
+                channel = "data"
+                with self._latest_lock:
+                    payload = self._latest.pop(key)
+            else:
+                _, slot, addr, channel, payload = item
             if slot.state != "running":
                 return
             try:

@@ -381,3 +381,32 @@ def test_a_forged_outcome_from_a_stranger_changes_nothing(procs, tmp_path):
     assert len(ignored) == 1, out
     assert run_lines(out, "rsal run:") == ["rsal run: timeout after 8 s (caught 1/2, 1/1 agents up)"], out
     assert "ghost" not in out.split("[run] result:")[1]
+
+
+def test_nav_servers_run_the_stacks_beside_the_simulator_and_are_stopped(procs, tmp_path):
+    # simulator.nav_servers: 1 -> rsal sim .. --nav-servers 1 and one rsal sim .. --nav-part 0/1 server
+    path = scenario(
+        tmp_path,
+        f"""
+        nav:
+          simulator: {{world: {MAPS / "testroom.world"}, nav: vfh, nav_servers: 1}}
+          agents:
+            - {{type: rep, id: rep, args: {{subjects: [x], every: 1.0}}}}
+          end: {{duration: 25, timeout: 120}}
+        """,
+    )
+    p = procs(rsal_cmd("run", str(path)))
+    wait_until(lambda: "[run] agent rep is up" in p.output() or not p.alive(), 120, "the agent up", interval=0.1)
+    pids = {name: int(pid) for name, pid in re.findall(r"\[run\] started (\S+) \(pid (\d+)\)", p.output())}
+    assert set(pids) == {"sim", "nav0", "rep"}, p.output()
+    assert re.search(r"rsal sim \S*testroom.world --listen \S+ --nav vfh --nav-servers 1", p.output())
+    # the stack's server joins the fabric, requires r0's devices and the map, and serves r0's stack
+    up = "wavefront r0: providing r0:planner:0"
+    wait_until(lambda: up in p.output() or not p.alive(), 60, "the nav server's planner up", interval=0.1)
+    out = finished(p, 120, "rsal run to end")
+    assert p.p.returncode == 0, out
+    assert "part 0/1: navigation stacks of 1 robot(s) (r0)" in out
+    for dev in ("amcl r0: providing r0:localize:0, r0:position2d:2", "vfh r0: providing r0:position2d:1", up):
+        assert re.search(r"\[nav0\] .*" + re.escape(dev), out), dev
+    assert all(pid_gone(pid) for pid in pids.values()), pids
+    assert "Traceback" not in out

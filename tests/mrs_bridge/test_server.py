@@ -530,3 +530,51 @@ def test_a_full_inbox_drops_cmds_and_answers_rpcs_busy():
     assert srv.stats["too_large"] == 1 and srv.inbox.qsize() == INBOX_MAX
     srv.stop()  # the server's own items still get in
     assert srv.inbox.qsize() == INBOX_MAX + 1
+
+
+def test_data_from_a_required_device_waits_as_its_latest_sample_only():
+    """A newer data sample replaces one still waiting in the inbox (latest wins); events queue in
+    order, every one; a scheduler that keeps up sees every sample."""
+    import textwrap
+
+    from mrs_bridge.config import parse_config
+    from mrs_bridge.server import DeviceServer
+    from rsal.testing import FakeSession
+
+    class Payload(bytes):
+        def to_bytes(self):
+            return bytes(self)
+
+    srv = DeviceServer(parse_config(textwrap.dedent(TWO_COUNTERS), source="t.toml"), FakeSession(), drivers=DRIVERS)
+    from types import SimpleNamespace
+
+    slot = SimpleNamespace(state="running", driver=SimpleNamespace(on_input=None))
+    other = SimpleNamespace(state="running", driver=SimpleNamespace(on_input=None))
+    a = parse_device("r0:dio:0")
+    seen = []
+    srv._call = lambda s, fn, addr, channel, msg: seen.append((s is slot, channel, msg))
+    for i in range(5):  # five samples while the scheduler is busy: one item, the newest payload
+        srv._on_sample(("input", slot, a, "data"), Payload(msgpack.packb({"i": i})), 1 << 20)
+    srv._on_sample(("input", other, a, "data"), Payload(msgpack.packb({"i": 9})), 1 << 20)  # another driver's
+    for i in range(3):
+        srv._on_sample(("input", slot, a, "event"), Payload(msgpack.packb({"e": i})), 1 << 20)
+    assert srv.inbox.qsize() == 5 and srv.stats["superseded"] == 4
+    import rsal.interfaces as itf
+
+    decode = itf.decode_data
+    itf.decode_data = lambda iface, payload: msgpack.unpackb(payload)
+    try:
+        while not srv.inbox.empty():
+            srv._handle(srv.inbox.get_nowait())
+        srv._on_sample(("input", slot, a, "data"), Payload(msgpack.packb({"i": 5})), 1 << 20)  # kept up
+        srv._handle(srv.inbox.get_nowait())
+    finally:
+        itf.decode_data = decode
+    assert seen == [
+        (True, "data", {"i": 4}),
+        (False, "data", {"i": 9}),
+        (True, "event", {"e": 0}),
+        (True, "event", {"e": 1}),
+        (True, "event", {"e": 2}),
+        (True, "data", {"i": 5}),
+    ]

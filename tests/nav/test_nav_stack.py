@@ -135,3 +135,38 @@ def test_rsal_goto_command(procs, vfh_port):
     assert ok.p.returncode == 0, out
     assert "[goto] r0:planner:0: done after" in out
     assert out.count("m to go") >= 1
+
+
+def test_the_stack_in_another_server_reaches_the_goal(procs, port, fabric_factory):
+    """``--nav-servers 1`` leaves the stack out of the simulator's server; ``--nav-part 0/1`` runs it
+    in a second process that requires r0's devices and the map over the fabric (Player's
+    planner_6666.cfg requiring 6665:position2d:0)."""
+    from rsal.data import Position
+
+    ep = f"tcp/127.0.0.1:{port}"
+    sim = procs(rsal_cmd("sim", WORLD, "--nav", "vfh", "--nav-servers", "1", "--speedup", SPEEDUP, "--listen", ep))
+    nav = procs(rsal_cmd("sim", WORLD, "--nav", "vfh", "--nav-part", "0/1", "--connect", ep))
+    fab = fabric_factory(port)
+    robot, simdev = nav_robot(fab, timeout=60.0)
+    wait_until(lambda: "[nav]" in nav.output() and "part 0/1" in nav.output(), 10, "the nav server's banner")
+    assert "[serve]" in nav.output() and "robots (r0)" not in nav.output()
+    goal = Position(4.0, 0.0, 0.0)
+    try:
+        assert robot.goto(goal).result(timeout=90) == "done"
+    except TimeoutError:
+        pytest.fail(f"not done in 90 s: planner {robot.planner.latest}\n{nav.output()[-3000:]}")
+    truth = simdev.get_pose("r0")
+    assert math.hypot(truth.x - goal.x, truth.y - goal.y) < 0.6
+    # the planner was the nav server's: stopping it withdraws r0:planner:0, the simulator runs on
+    nav.stop()
+    node = fab.node("r0:*:*")
+    wait_until(
+        lambda: not any(d.interface == "planner" for d in node.devices()), 20, "r0:planner:0 to go with its server"
+    )
+    assert sim.alive()
+
+
+def test_nav_part_needs_nav(procs, port):
+    p = procs(rsal_cmd("sim", WORLD, "--nav-part", "0/2", "--listen", f"tcp/127.0.0.1:{port}"))
+    wait_until(lambda: not p.alive(), 30, "rsal sim to exit")
+    assert p.p.returncode == 1 and "--nav" in p.output() and "Traceback" not in p.output()
