@@ -15,7 +15,7 @@ import time
 
 import pytest
 
-from tests.conftest import ROOT, SPEEDUP_NAV, Proc, free_port, rsal_cmd, wait_until
+from tests.conftest import ROOT, SPEEDUP, SPEEDUP_NAV, Proc, free_port, rsal_cmd, wait_until
 
 WORLD = str(ROOT / "maps" / "testroom.world")
 
