@@ -129,7 +129,7 @@ def sim_config(
         )
 
     map_addr = f"{node}:map:0"
-    drivers = [block("simulation", node, [("simulation", 0)])]
+    drivers = [block("simulation", node, [("simulation", 0), ("crowd", 0)])]
     if map_device and world.grid is not None:
         drivers.append(block("simmap", node, [("map", 0)]))
     for name in world.robot_names:
