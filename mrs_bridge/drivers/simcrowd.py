@@ -81,7 +81,12 @@ class CrowdView:
             self._robots = robots
             self._offsets = np.asarray(offsets, np.int32)
             self._layout = CrowdLayout(
-                [d.model for d in robots], ["gps" if d.gps else "odom" for d in robots], geoms, ranger_of, offsets
+                [d.model for d in robots],
+                ["gps" if d.gps else "odom" for d in robots],
+                geoms,
+                ranger_of,
+                offsets,
+                [list(d.spec.max_speed[:2]) for d in robots],
             )
         return self._robots
 

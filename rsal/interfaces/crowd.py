@@ -135,13 +135,15 @@ class CrowdLayout:
     """The crowd device's ``describe`` geometry, typed: ``robots`` (names, the order of every array),
     ``frames`` (each robot's position2d frame, ``odom`` or ``gps``), ``rangers`` (the distinct ranger
     geometries, as each ranger's own ``describe`` reports it), ``ranger_of`` (each robot's index
-    into ``rangers``, -1: no ranger) and ``offsets`` (N + 1: where each robot's ranges sit)."""
+    into ``rangers``, -1: no ranger), ``offsets`` (N + 1: where each robot's ranges sit) and
+    ``limits`` (each robot's ``[max speed m/s, max turn rate rad/s]``, as its position2d reports)."""
 
     robots: list[str]
     frames: list[str]
     rangers: list[dict]
     ranger_of: list[int]
     offsets: list[int] = field(default_factory=list)
+    limits: list[list[float]] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {
@@ -150,6 +152,7 @@ class CrowdLayout:
             "rangers": list(self.rangers),
             "ranger_of": list(self.ranger_of),
             "offsets": list(self.offsets),
+            "limits": [list(x) for x in self.limits],
         }
 
     @classmethod
@@ -162,9 +165,12 @@ class CrowdLayout:
             get_list(m, "rangers", dict),
             get_list(m, "ranger_of", int),
             get_list(m, "offsets", int),
+            get_list(m, "limits", lambda x: [float(v) for v in x], required=False),
         )
         if len(out.frames) != n or len(out.ranger_of) != n or len(out.offsets) != n + 1:
             raise MessageError(f"crowd layout: {n} robots, but frames, ranger_of or offsets do not match")
+        if out.limits and (len(out.limits) != n or any(len(x) != 2 for x in out.limits)):
+            raise MessageError(f"crowd layout: {n} robots, but limits does not list [v, w] for each")
         if any(not -1 <= k < len(out.rangers) for k in out.ranger_of):
             raise MessageError("crowd layout: a ranger_of index names no ranger geometry")
         return out
