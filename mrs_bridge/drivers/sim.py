@@ -393,7 +393,6 @@ class SimDriver(Driver):
         if self.guard.estop or not self.motors:  # also over the world's own ctrl controllers (Stage wander)
             w.halt(self.model)
         t = w.time
-        v, om = w.velocity(self.model)
         plan = self._publish_plan
         if plan is None:
             plan = self._publish_plan = self._plan()
@@ -403,6 +402,7 @@ class SimDriver(Driver):
                 if not heard(a):  # nobody subscribes: no message built (a crowd reader may read all robots)
                     continue
                 pose = w.get_pose(self.model) if self.gps else w.odometry(self.model)
+                v, om = w.velocity(self.model)
                 g = self.guard
                 self.publish(a, Position2dData(t, pose, (v, 0.0, om), w.stalled(self.model), g.timed_out, g.estop))
             elif iface == "ranger":

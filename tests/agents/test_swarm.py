@@ -144,6 +144,10 @@ def test_constructor_errors_are_clear():
         SwarmAgent("s0", robot="")
     with pytest.raises(ValueError, match="side"):
         SwarmAgent("s0", robot="r0", side="up")
+    with pytest.raises(ValueError, match="crowd: true needs vector: true"):
+        SwarmAgent("s0", robot="r0", crowd=True, vector=False)
+    with pytest.raises(ValueError, match="crowd 'yes' must be true or false"):
+        SwarmAgent("s0", robot="r0", crowd="yes")
     with pytest.raises(ValueError, match="robots"):
         SwarmMonitor("m", robots=0)
     with pytest.raises(ValueError, match="duration"):
