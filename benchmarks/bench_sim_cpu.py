@@ -1,25 +1,25 @@
 """The simulator server's CPU per simulated second, split by phase (``rsal sim`` on a crowd).
 
-Runs the device server of ``rsal sim WORLD`` (default ``maps/swarm1000.world``: 1000 Pioneers with
-8 sonars, localization "gps", the ``thousand`` app's world) in this process, as fast as possible,
-for ``--sim-seconds`` after ``--warmup`` simulated seconds, with no agents: the robots stand
-(``--drive stand``) or drive fixed arcs (``--drive arcs``, default: each robot a seeded random
-forward speed and turn rate, set once, so physics sees moving, colliding bodies and no controller
-costs CPU per step). A subscriber process listens to ``rsal/**`` (as ``rsal watch`` or the recorder
-would; ``--listen KEYEXPR`` another key, e.g. ``rsal/*/crowd/*/data`` for the crowd device alone: a
-device nobody subscribes to is not published), so every publication is delivered over TCP, and reports the ``data`` samples it received
-per interface over the whole run (``rx_<iface>``, ``rx_total``; beside the server's ``published``
-count: the same devices, the same rates, nothing lost).
+Runs the device server of ``rsal sim WORLD`` (default ``maps/swarm1000.world``: 1000 Pioneers with 8
+sonars, localization "gps", the ``thousand`` app's world) in this process, as fast as possible, for
+``--sim-seconds`` after ``--warmup`` simulated seconds, with no agents: the robots stand (``--drive
+stand``) or drive fixed arcs (``--drive arcs``, default: each robot a seeded random forward speed
+and turn rate, set once, so physics sees moving, colliding bodies and no controller costs CPU per
+step). A subscriber process listens to ``rsal/**`` (as ``rsal watch`` or the recorder would;
+``--listen KEYEXPR`` another key, e.g. ``rsal/*/crowd/*/data`` for the crowd device alone: a device
+nobody subscribes to is not published), so every publication is delivered over TCP, and reports the
+``data`` samples it received per interface over the whole run (``rx_<iface>``, ``rx_total``; beside
+the server's ``published`` count: the same devices, the same rates, nothing lost).
 
-Figures are CPU time, which holds on a shared machine where wall time does not:
-``cores_rt`` = process CPU seconds per simulated second (the cores real time needs), and its split
-by phase, each from ``time.thread_time`` around the scheduler thread's calls: ``physics``
-(pymunk ``Space.step`` and the motors), ``motion`` (acceleration limits, odometry), ``energy``
-(:mod:`simulator.energy`), ``sensors`` (ray casting and the other sensors' steps), ``publish``
-(the sim drivers' publications: encoding plus Zenoh puts, ``encode`` and ``put`` apart where
-measured), ``crowd`` (the crowd device's message: built and put), ``devices`` (the sim drivers' other per-device Python), ``server`` (the scheduler and
-everything else on that thread) and ``zenoh_threads`` (the process's other threads: Zenoh's
-runtime sending the samples). ``--profile`` also prints cProfile's top functions.
+Figures are CPU time, which holds on a shared machine where wall time does not: ``cores_rt`` =
+process CPU seconds per simulated second (the cores real time needs), and its split by phase, each
+from ``time.thread_time`` around the scheduler thread's calls: ``physics`` (pymunk ``Space.step``
+and the motors), ``motion`` (acceleration limits, odometry), ``energy`` (:mod:`simulator.energy`),
+``sensors`` (ray casting and the other sensors' steps), ``publish`` (the sim drivers' publications:
+encoding plus Zenoh puts, ``encode`` and ``put`` apart where measured), ``crowd`` (the crowd
+device's message: built and put), ``devices`` (the sim drivers' other per-device Python), ``server``
+(the scheduler and everything else on that thread) and ``zenoh_threads`` (the process's other
+threads: Zenoh's runtime sending the samples). ``--profile`` also prints cProfile's top functions.
 
 Output: one parseable line, ``bench=sim_cpu key=value ...``.
 Usage: ``python benchmarks/bench_sim_cpu.py [--world maps/swarm1000.world] [--sim-seconds 10]``

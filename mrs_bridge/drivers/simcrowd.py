@@ -18,7 +18,6 @@ samples per robot, and sends one :class:`~rsal.interfaces.crowd.CrowdCmd` per co
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -26,6 +25,7 @@ import numpy as np
 from rsal.interfaces.crowd import CrowdCmd, CrowdData, CrowdLayout
 from rsal.interfaces.position2d import VelocityCmd
 from rsal.msgs import MessageError
+from simulator.sensors.base import wrap
 
 from . import simmsgs
 
@@ -35,8 +35,6 @@ if TYPE_CHECKING:
     from .sim import SimDriver, SimulationDriver
 
 __all__ = ["CrowdView"]
-
-_NAN3 = (math.nan, math.nan, math.nan)
 
 
 class CrowdView:
@@ -49,6 +47,7 @@ class CrowdView:
         self._src: list[int | None] = []
         self._layout: CrowdLayout | None = None
         self._offsets = np.zeros(1, np.int32)
+        self._gps: list[int] = []  # rows whose position2d reports ground truth
 
     # ------------------------------------------------------------------ the robots and their order
     def robots(self) -> list[SimDriver]:
@@ -79,6 +78,7 @@ class CrowdView:
                 ranger_of.append(geoms.index(g))
                 offsets.append(offsets[-1] + sum(s.samples for s in rs[src].sensors))
             self._robots = robots
+            self._gps = [i for i, d in enumerate(robots) if d.gps]
             self._offsets = np.asarray(offsets, np.int32)
             self._layout = CrowdLayout(
                 [d.model for d in robots],
@@ -103,29 +103,40 @@ class CrowdView:
         self.driver.publish(self.addr, self.data(w))
 
     def data(self, w) -> CrowdData:
+        """This step's rows, read from the world's arrays (odometry, velocities, stall flags) by the
+        robots' rows; ground-truth poses and scans per robot. The values (and their float
+        arithmetic) are those of ``World.odometry``/``get_pose``/``velocity``/``stalled``/``ranger``."""
         robots = self.robots()
         n = len(robots)
-        pose = np.empty((n, 3), np.float64)
-        vel = np.zeros((n, 2), np.float64)
-        stall = np.zeros(n, np.float32)
+        models = w.models
+        rows = np.fromiter((m.row if (m := models.get(d.model)) is not None else -1 for d in robots), np.int64, n)
+        gone = rows < 0
+        r = np.where(gone, 0, rows)
+        dr = w.drives
+        pose = np.array(dr.odom[r], dtype=np.float64)
+        pose[:, 2] = wrap(pose[:, 2])
+        for i in self._gps:
+            if not gone[i]:
+                pose[i] = w.get_pose(robots[i].model)
+        vel = np.array(dr.vel[r], dtype=np.float64)
+        stall = np.asarray(dr.stall[r], dtype=np.float32)
+        pose[gone] = np.nan  # removed at run time: its row says so
         scan_t = np.full(n, -1.0)
         offs = self._offsets
-        ranges = np.full(int(offs[-1]), np.nan, np.float32)
-        present = w.models
+        readings = w.sensors["ranger"].readings
+        parts = []
         for i, d in enumerate(robots):
-            m = d.model
-            if m not in present:  # removed at run time: its row says so with NaN
-                pose[i] = _NAN3
-                continue
-            pose[i] = w.get_pose(m) if d.gps else w.odometry(m)
-            vel[i] = w.velocity(m)
-            stall[i] = w.stalled(m)
             src = self._src[i]
-            if src is not None:
-                r = w.ranger(m, src)
-                if r is not None:
-                    ranges[offs[i] : offs[i + 1]] = r.ranges
-                    scan_t[i] = r.time
+            if src is None:
+                continue
+            rec = readings.get(d.model) if not gone[i] else None
+            rec = rec[src] if rec is not None else None
+            if rec is None:
+                parts.append(np.full(int(offs[i + 1] - offs[i]), np.nan, np.float32))
+            else:
+                parts.append(rec.ranges)
+                scan_t[i] = rec.time
+        ranges = np.concatenate(parts).astype(np.float32, copy=False) if parts else np.zeros(0, np.float32)
         return CrowdData(w.time, pose, vel, stall, scan_t, ranges, offs)
 
     # ------------------------------------------------------------------ commands
@@ -139,7 +150,7 @@ class CrowdView:
                 f"crowd cmd: index {int(c.idx[bad][0])} is outside the {n} robots of {self.addr} "
                 "(indices follow the order of its rpc/describe)"
             )
-        for i, v, om in zip(c.idx.tolist(), c.v.tolist(), c.w.tolist()):
+        for i, v, om in zip(c.idx.tolist(), c.v.tolist(), c.w.tolist(), strict=True):
             d = robots[i]
             try:
                 if d.model not in d.world.models:

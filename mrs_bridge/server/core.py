@@ -84,7 +84,16 @@ class DeviceServer(_Intake, _Rpc, _Devices):
         self.devices: dict[DeviceAddr, _Device] = {}
         self._stop = threading.Event()
         self._warned: dict[str, tuple[float, int]] = {}
-        self.stats = {"cmd": 0, "rpc": 0, "rejected": 0, "published": 0, "unheard": 0, "too_large": 0, "dropped": 0, "busy": 0}
+        self.stats = {
+            "cmd": 0,
+            "rpc": 0,
+            "rejected": 0,
+            "published": 0,
+            "unheard": 0,
+            "too_large": 0,
+            "dropped": 0,
+            "busy": 0,
+        }
         self._reported = (0, 0, 0)  # too_large, dropped, busy already warned about
         self._failed = 0  # drivers that failed (the loop checks whether any still works)
         self._pub_cache: dict[int, tuple[DeviceAddr, Any, Any]] = {}  # id(addr) -> (addr, publisher's put, device)

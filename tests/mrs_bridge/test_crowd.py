@@ -63,7 +63,8 @@ def sim():
 @pytest.fixture
 def client(sim, fabric_factory):
     fab = fabric_factory(sim.port)
-    fab.node("**").wait_for("**", count=2 + 3 * 4, timeout=20)  # simulation, crowd; 3 robots x (position2d, ranger, sonar, power)
+    # simulation, crowd; 3 robots x (position2d, ranger, sonar, power)
+    fab.node("**").wait_for("**", count=2 + 3 * 4, timeout=20)
     return fab
 
 
@@ -223,7 +224,8 @@ def test_data_is_built_only_while_someone_listens(sim, client, monkeypatch):
 
 
 def test_crowd_layout_and_messages_round_trip():
-    lay = CrowdLayout(["a", "b"], ["odom", "gps"], [{"kind": "sonar", "pose": [0, 0, 0], "sensors": []}], [0, -1], [0, 0, 0])
+    sonar = {"kind": "sonar", "pose": [0, 0, 0], "sensors": []}
+    lay = CrowdLayout(["a", "b"], ["odom", "gps"], [sonar], [0, -1], [0, 0, 0], [[0.5, 1.0], [0.5, 1.0]])
     assert CrowdLayout.from_dict(msgpack.unpackb(msgpack.packb(lay.to_dict()))) == lay
     c = CrowdCmd(np.int32([1, 0]), np.float64([0.1, 0.2]), np.float64([0.0, -0.1]))
     back = CrowdCmd.from_bytes(c.to_msgpack())

@@ -176,7 +176,9 @@ class SwarmAgent(RobotAgent):
         if not isinstance(crowd, bool):
             raise ValueError(f"agent {agent_id}: crowd {crowd!r} must be true or false")
         if crowd and not (vector and shared):
-            raise ValueError(f"agent {agent_id}: crowd: true needs vector: true and shared: true (the host's batch step)")
+            raise ValueError(
+                f"agent {agent_id}: crowd: true needs vector: true and shared: true (the host's batch step)"
+            )
         self.crowd = crowd
         for name, v in (("neighbourhood", neighbourhood), ("cell_size", cell_size), ("max_speed", max_speed)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:

@@ -210,4 +210,3 @@ class CrowdStep:
         self.step_s += t1 - t0
         self.send_s += t2 - t1
         return rest
-
