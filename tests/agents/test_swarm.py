@@ -310,11 +310,13 @@ def test_hundred_robots_sixty_seconds(procs, sim_time, tmp_path):
 
 
 # ---------------------------------------------------------------------------- neighbourhood
-def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, sim_time, tmp_path):
+@pytest.mark.parametrize("crowd", [False, True], ids=["proxies", "crowd"])
+def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, sim_time, tmp_path, crowd):
     """16 robots 2.5 m apart (gps: their position2d is the true pose), neighbourhood 3 m in cells
     of 1.5 m: the monitor's ground-truth verdict has 100 % delivery within the radius; no message
     reached a receiver farther than the reach of its cells; some broadcasts were out of every
-    cell's reach (the scoping works) and robots crossed cell borders."""
+    cell's reach (the scoping works) and robots crossed cell borders. Both with the robots' device
+    proxies and through the simulator's crowd device (``crowd: true``, the ``thousand`` app's path)."""
     from agents.cells import cell_of
 
     n, radius, cell, duration = 16, 3.0, 1.5, 20.0
@@ -328,7 +330,9 @@ def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, s
         async with AgentHost.connect(TransportArgs(connect=[ep])) as host:
             await asyncio.to_thread(sim_time, host.session)
             agents = [
-                SwarmAgent(f"swarm{i}", robot=f"r{i}", startup_timeout=120, neighbourhood=radius, cell_size=cell)
+                SwarmAgent(
+                    f"swarm{i}", robot=f"r{i}", startup_timeout=120, neighbourhood=radius, cell_size=cell, crowd=crowd
+                )
                 for i in range(n)
             ]
             # latency is the benchmark's to judge; a loaded machine (p99 up to 0.8 s seen) must not fail this
