@@ -44,7 +44,7 @@ import numpy as np
 from agents.cells import cell_of
 from agents.cells import margin as cell_margin
 from agents.classes import RobotAgent
-from agents.hub import RobotHub
+from agents.hub import RobotHub, robot_xy
 from agents.registry import agent_class
 from agents.services import Message, SendPosition
 from rsal.clock import clock
@@ -75,18 +75,17 @@ class _Headings:
         self.of: dict[str, float | None] = {}
 
     def update(self) -> None:
-        agents = [
-            a
-            for a in self.hub.agents.values()
-            if isinstance(a, SwarmAgent)
-            and a.pioneer is not None
-            and a.frame == "map"
-            and a.pioneer.position is not None
-        ]
+        agents, mine = [], []
+        for a in self.hub.agents.values():
+            if isinstance(a, SwarmAgent) and a.pioneer is not None and a.frame == "map":
+                p = robot_xy(a.pioneer)
+                if p is not None:
+                    agents.append(a)
+                    mine.append(p)
         if not agents:
             return
         xy, index = self.hub.received_positions()
-        me = np.array([a.pioneer.position.as_tuple()[:2] for a in agents], dtype=float)
+        me = np.array(mine, dtype=float)
         radius = np.array([min(a.disperse_radius, a.neighbourhood or a.disperse_radius) for a in agents])
         own = np.array([index.get(a.robot, -1) for a in agents])
         h = away_headings(me, xy, radius, own)

@@ -113,6 +113,15 @@ class CrowdRobot:
         self.distance = 0.0
         self.updates = 0
 
+    def xy(self) -> tuple[float, float] | None:
+        """Its latest ``(x, y)`` (no :class:`Position` built: the hub asks this for every robot)."""
+        m = self.link.device.latest
+        i = self.row
+        if m is None or i >= m.count:
+            return None
+        x, y = float(m.pose[i, 0]), float(m.pose[i, 1])
+        return None if x != x else (x, y)
+
     @property
     def position(self) -> Position | None:
         p = self.link.latest_pose(self.row)
