@@ -66,6 +66,20 @@ DEFAULT_TEMPLATES = ("*:position2d:0", "*:sonar:0", "*:laser:0", "*:simulation:0
 Listener = Callable[["RobotHub", Message, float], None]
 
 
+def robot_xy(robot) -> tuple[float, float] | None:
+    """A robot's latest ``(x, y)`` in its base's frame: its position2d's latest sample, or, for a
+    robot without device proxies (a row of the simulator's crowd device), its ``position``."""
+    pos = getattr(robot, "position2d", None)
+    if pos is not None:
+        m = pos.latest
+        return None if m is None else (m.pose[0], m.pose[1])
+    xy = getattr(robot, "xy", None)
+    if xy is not None:
+        return xy()
+    p = robot.position
+    return None if p is None else (p.x, p.y)
+
+
 class RobotHub:
     """What the robot agents of one host share: a Fabric with one DeviceNode, one control loop
     running every robot's cycle, one ``send_position`` subscription fanned out on the loop."""
@@ -179,11 +193,11 @@ class RobotHub:
         reach = self.radius + self.margin
         for aid, a in self.agents.items():
             robot = self.robots.get(getattr(a, "robot", ""))
-            m = robot.position2d.latest if robot is not None else None
-            if m is None:
+            xy = robot_xy(robot) if robot is not None else None
+            if xy is None:
                 cells = self.agent_cells.get(aid, frozenset())
             else:
-                cells = frozenset(cells_near(m.pose[0], m.pose[1], reach, self.cell_size))
+                cells = frozenset(cells_near(xy[0], xy[1], reach, self.cell_size))
                 self.agent_cells[aid] = cells
             for c in cells:
                 by_cell.setdefault(c, []).append(a)
@@ -197,11 +211,10 @@ class RobotHub:
     def _watch_new(self, robot: str) -> None:
         """Watch the cells of the agents of a robot just added, at once (the whole set is re-computed
         at the next :meth:`rewatch`; one robot at a time keeps a crowd's start-up linear)."""
-        r = self.robots[robot]
-        m = r.position2d.latest
-        if m is None or self._cells is None:
+        xy = robot_xy(self.robots[robot])
+        if xy is None or self._cells is None:
             return
-        cells = frozenset(cells_near(m.pose[0], m.pose[1], self.radius + self.margin, self.cell_size))
+        cells = frozenset(cells_near(xy[0], xy[1], self.radius + self.margin, self.cell_size))
         for fn in self.before_rewatch:
             fn()
         for aid, a in self.agents.items():

@@ -1,24 +1,25 @@
 """The simulator server's CPU per simulated second, split by phase (``rsal sim`` on a crowd).
 
-Runs the device server of ``rsal sim WORLD`` (default ``maps/swarm1000.world``: 1000 Pioneers with
-8 sonars, localization "gps", the ``thousand`` app's world) in this process, as fast as possible,
-for ``--sim-seconds`` after ``--warmup`` simulated seconds, with no agents: the robots stand
-(``--drive stand``) or drive fixed arcs (``--drive arcs``, default: each robot a seeded random
-forward speed and turn rate, set once, so physics sees moving, colliding bodies and no controller
-costs CPU per step). A subscriber process listens to ``rsal/**`` (as ``rsal watch`` or the recorder
-would), so every publication is delivered over TCP, and reports the ``data`` samples it received
-per interface over the whole run (``rx_<iface>``, ``rx_total``; beside the server's ``published``
-count: the same devices, the same rates, nothing lost).
+Runs the device server of ``rsal sim WORLD`` (default ``maps/swarm1000.world``: 1000 Pioneers with 8
+sonars, localization "gps", the ``thousand`` app's world) in this process, as fast as possible, for
+``--sim-seconds`` after ``--warmup`` simulated seconds, with no agents: the robots stand (``--drive
+stand``) or drive fixed arcs (``--drive arcs``, default: each robot a seeded random forward speed
+and turn rate, set once, so physics sees moving, colliding bodies and no controller costs CPU per
+step). A subscriber process listens to ``rsal/**`` (as ``rsal watch`` or the recorder would;
+``--listen KEYEXPR`` another key, e.g. ``rsal/*/crowd/*/data`` for the crowd device alone: a device
+nobody subscribes to is not published), so every publication is delivered over TCP, and reports the
+``data`` samples it received per interface over the whole run (``rx_<iface>``, ``rx_total``; beside
+the server's ``published`` count: the same devices, the same rates, nothing lost).
 
-Figures are CPU time, which holds on a shared machine where wall time does not:
-``cores_rt`` = process CPU seconds per simulated second (the cores real time needs), and its split
-by phase, each from ``time.thread_time`` around the scheduler thread's calls: ``physics``
-(pymunk ``Space.step`` and the motors), ``motion`` (acceleration limits, odometry), ``energy``
-(:mod:`simulator.energy`), ``sensors`` (ray casting and the other sensors' steps), ``publish``
-(the sim drivers' publications: encoding plus Zenoh puts, ``encode`` and ``put`` apart where
-measured), ``devices`` (the sim drivers' other per-device Python), ``server`` (the scheduler and
-everything else on that thread) and ``zenoh_threads`` (the process's other threads: Zenoh's
-runtime sending the samples). ``--profile`` also prints cProfile's top functions.
+Figures are CPU time, which holds on a shared machine where wall time does not: ``cores_rt`` =
+process CPU seconds per simulated second (the cores real time needs), and its split by phase, each
+from ``time.thread_time`` around the scheduler thread's calls: ``physics`` (pymunk ``Space.step``
+and the motors), ``motion`` (acceleration limits, odometry), ``energy`` (:mod:`simulator.energy`),
+``sensors`` (ray casting and the other sensors' steps), ``publish`` (the sim drivers' publications:
+encoding plus Zenoh puts, ``encode`` and ``put`` apart where measured), ``crowd`` (the crowd
+device's message: built and put), ``devices`` (the sim drivers' other per-device Python), ``server``
+(the scheduler and everything else on that thread) and ``zenoh_threads`` (the process's other
+threads: Zenoh's runtime sending the samples). ``--profile`` also prints cProfile's top functions.
 
 Output: one parseable line, ``bench=sim_cpu key=value ...``.
 Usage: ``python benchmarks/bench_sim_cpu.py [--world maps/swarm1000.world] [--sim-seconds 10]``
@@ -46,7 +47,7 @@ def cb(sample):
     k = str(sample.key_expr).split("/")
     if k[-1] == "data":
         counts[k[2]] += 1
-sub = s.declare_subscriber("rsal/**", cb)
+sub = s.declare_subscriber(sys.argv[3], cb)
 print("ready", flush=True)
 for line in sys.stdin:
     if line.startswith("mark"):
@@ -101,6 +102,9 @@ def instrument(world, server, meter: Meter) -> None:
     if hasattr(server, "publish_each"):
         server.publish_each = meter.wrap("publish", server.publish_each)
     SimulationDriver.update = meter.wrap("sim_update", SimulationDriver.update)
+    from mrs_bridge.drivers.simcrowd import CrowdView
+
+    CrowdView.on_step = meter.wrap("crowd", CrowdView.on_step)
 
 
 def main() -> int:
@@ -109,7 +113,17 @@ def main() -> int:
     ap.add_argument("--sim-seconds", type=float, default=10.0)
     ap.add_argument("--warmup", type=float, default=2.0, help="simulated seconds before measuring")
     ap.add_argument("--drive", choices=("stand", "arcs"), default="arcs")
-    ap.add_argument("--no-listener", action="store_true", help="no subscriber process (puts go nowhere)")
+    ap.add_argument("--no-listener", action="store_true", help="no subscriber process (nothing is published)")
+    ap.add_argument(
+        "--listen",
+        default="rsal/**",
+        help="the subscriber's key expression (default rsal/**, every device; rsal/*/crowd/*/data: the crowd only)",
+    )
+    ap.add_argument(
+        "--always-publish",
+        action="store_true",
+        help="build and put every device's data even without a subscriber (the server before it asked)",
+    )
     ap.add_argument("--no-phases", action="store_true", help="total CPU only (no timers around calls)")
     ap.add_argument("--profile", type=int, default=0, metavar="N", help="print cProfile's top N functions")
     ap.add_argument("--seed", type=int, default=1)
@@ -140,13 +154,21 @@ def main() -> int:
     sub = None
     if not args.no_listener:
         sub = subprocess.Popen(
-            [sys.executable, "-c", _SUB, ep, str(ROOT)],
+            [sys.executable, "-c", _SUB, ep, str(ROOT), args.listen],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,
             start_new_session=True,
         )
         assert sub.stdout.readline().strip() == "ready"
+    if args.always_publish:  # the baseline: every device counts as listened to
+        from mrs_bridge.server.devices import _Device
+
+        _Device._on_match = lambda self, status: None
+        _Device.listened = property(lambda self: True, lambda self, v: None)
+        from mrs_bridge.drivers.simcrowd import CrowdView
+
+        CrowdView.on_step = lambda self, w: None  # nor was there a crowd device
     server = DeviceServer(cfg, session, shared={"simulator.world": world})
     server.start()  # the arcs were set on the world, not commanded: no base guard times them out
     meter = Meter()
@@ -195,6 +217,8 @@ def main() -> int:
     out = {
         "robots": n,
         "drive": args.drive,
+        "listener": "none" if args.no_listener else args.listen,
+        "always_publish": args.always_publish,
         "sim_seconds": round(sim, 1),
         "rtf": round(sim / (w1 - w0), 3),
         "cores_rt": round(total, 3),
@@ -208,7 +232,8 @@ def main() -> int:
         world_phases = ph["physics"] + ph["motion"] + ph["energy"] + ph["sensors"]
         out.update({k: round(ph[k], 3) for k in ("physics", "motion", "energy", "sensors", "publish")})
         out["devices"] = round(ph["sim_drivers"] - ph["publish"], 3)
-        out["world_other"] = round(ph["sim_update"] - world_phases - ph["sim_drivers"], 3)
+        out["crowd"] = round(ph.get("crowd", 0.0), 3)
+        out["world_other"] = round(ph["sim_update"] - world_phases - ph["sim_drivers"] - ph.get("crowd", 0.0), 3)
         out["server"] = round(main_t - ph["sim_update"], 3)
     print("bench=sim_cpu " + " ".join(f"{k}={v}" for k, v in out.items()) + (" " + rates if rates else ""), flush=True)
     if prof:

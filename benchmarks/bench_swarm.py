@@ -38,7 +38,10 @@ temporary directory are their barrier) and exchange their senders' counts and, i
 their agents' figures for the first host's monitor; the result line combines them (sums; the worse
 host's control load and overruns; one latency histogram). Each host runs the swarm's vectorised
 host step (:mod:`agents.scenarios.swarm.vector`) unless ``--no-vector``; ``--before`` also runs
-each form as before, one host with every robot's own cycle, in the same run.
+each form as before, one host with every robot's own cycle, in the same run. ``--crowd``: the
+hosts read and command their robots through the simulator's ``crowd`` device
+(:mod:`agents.scenarios.swarm.crowd`: one describe, one data message per step, one command message
+per cycle) instead of two device proxies per robot.
 
 Output: ``bench=swarm key=value ...`` lines. Usage:
 ``python benchmarks/bench_swarm.py --robots 100,200,500 --seconds 30``;
@@ -124,6 +127,8 @@ async def _host(args) -> dict:
             await host.start(mon)
         kw = {"neighbourhood": near, "cell_size": args.cell_size} if near else {}
         kw["vector"] = args.vector
+        if args.crowd and not bare:
+            kw["crowd"] = True
         agents = [
             cls(f"swarm{i}", robot=f"r{i}", startup_timeout=300, stats_every=0, **kw)
             for i in range(first, first + mine)
@@ -242,6 +247,7 @@ async def _host(args) -> dict:
             "robots": n,
             "hosts": args.hosts,
             "vector": args.vector,
+            "crowd": bool(args.crowd and not bare),
             "mode": args.mode,
             "form": "near" if near else "all",
             "startup_s": round(startup, 1),
@@ -299,6 +305,7 @@ def _run_host(
             cmd += ["--form", form, "--neighbourhood", str(args.neighbourhood), "--cell-size", str(args.cell_size)]
             cmd += ["--index", str(k), "--hosts", str(hosts), "--first", str(first), "--count", str(last - first)]
             cmd += ["--sync-dir", sync] + ([] if vector else ["--no-vector"])
+            cmd += ["--crowd"] if args.crowd and vector else []
             if args.profile:
                 cmd += ["--profile", f"{args.profile}.h{k}"]
             cmd += ["--seconds", str(args.seconds), "--warmup", str(args.warmup), "--sim-pid", str(sim_pid)]
@@ -426,6 +433,11 @@ def main() -> None:
         dest="vector",
         action="store_false",
         help="each robot runs its own behaviour cycle (not the host's vectorised step)",
+    )
+    ap.add_argument(
+        "--crowd",
+        action="store_true",
+        help="the hosts read and command their robots through the simulator's crowd device (one message per step)",
     )
     ap.add_argument(
         "--before",

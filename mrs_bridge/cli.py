@@ -4,7 +4,8 @@ entry points).
 
 ``rsal serve`` runs the drivers of a TOML configuration (see :mod:`mrs_bridge.config`).
 ``rsal sim`` is the shorthand of DESIGN "Processes": one server with the simulator in-process,
-a ``simulation`` driver on node ``sim``, the floorplan as ``sim:map:0`` and one ``sim`` driver per
+a ``simulation`` driver on node ``sim`` (``sim:simulation:0`` and the robots as arrays,
+``sim:crowd:0``), the floorplan as ``sim:map:0`` and one ``sim`` driver per
 robot model, whose devices live on the node named after the model (``r0:position2d:0``...); which
 devices a robot has comes from its world model (:func:`mrs_bridge.drivers.sim.robot_devices`).
 ``--node NAME`` puts the simulation and map devices on another node, so that two simulators (e.g.
@@ -142,7 +143,7 @@ def sim_config(
     map_addr = f"{node}:map:0"
     drivers = []
     if nav_part is None:
-        drivers.append(block("simulation", node, [("simulation", 0)]))
+        drivers.append(block("simulation", node, [("simulation", 0), ("crowd", 0)]))
         if map_device and world.grid is not None:
             drivers.append(block("simmap", node, [("map", 0)]))
         for name in world.robot_names:

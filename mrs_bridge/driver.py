@@ -8,7 +8,8 @@ or on another server. The server owns all Zenoh entities; a driver only implemen
   compiled kernels are prepared here (:mod:`mrs_bridge.kernels`), before anything is announced;
 - ``ready()`` whether it can serve yet: its devices' tokens are declared after ``setup()``, the
   first ``update()`` and once ``ready()`` is true (a map still to arrive by rpc: not yet);
-- ``update(now)`` at ``rate`` Hz on the server's single scheduler (publish with ``publish``);
+- ``update(now)`` at ``rate`` Hz on the server's single scheduler (publish with ``publish``; data
+  nobody subscribes to is dropped, and ``listened(addr)`` tells before a costly message is built);
 - ``on_cmd(addr, msg)`` for a decoded ``cmd``: the message class the driver declares in
   ``cmd_types`` (``"GoalCmd | VelocityCmd"``), else the interface's (:mod:`rsal.interfaces`), else
   the plain map; raise :class:`~rsal.msgs.MessageError` (or :class:`OutOfRange`) to reject it: the
@@ -150,6 +151,11 @@ class Driver:
 
     def publish(self, addr: DeviceAddr, msg) -> None:
         self.server.publish(addr, msg)
+
+    def listened(self, addr: DeviceAddr) -> bool:
+        """Whether anyone subscribes to ``addr``'s ``data`` now (a cached flag): skip building a
+        message nobody reads (``publish`` drops it anyway, but only after it was built)."""
+        return self.server.listened(addr)
 
     def publish_each(self, addrs, msg) -> None:
         """Publish ``msg`` on each device of ``addrs``, encoded once (one scan on two devices)."""

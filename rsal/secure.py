@@ -20,7 +20,8 @@ kind              may (everything else is refused: ``default_permission: "deny"`
                   given (``--robots``: commands, rpcs, data) and, with robots, read their
                   true poses from the simulation (its token, ``describe``, ``get_pose``)
 ``operator``      read every device, service, agent and host daemon; command and call every
-                  device (start runs, drive robots, emergency stop and release); launch, stop
+                  device (start runs, drive robots, the simulator's ``crowd`` device that moves
+                  every robot, emergency stop and release); launch, stop
                   and list agent hosts on host daemons (``hosts/*/rpc/*``) and hold its runs'
                   launcher tokens; no other tokens, no services
 ``viewer``        read devices' data, events, tokens and ``describe``; press the emergency stop
@@ -66,6 +67,11 @@ ALL_MESSAGES = [
 CLOCK = "rsal/*/simulation/*/data"
 SIMULATION = "rsal/*/simulation/*"  # the simulation device's token
 SIM_READS = ("describe", "get_pose")  # what an agent host may ask the simulation (reads only)
+# The simulator's crowd device (rsal.interfaces.crowd): its cmd moves every robot of the simulator,
+# so only the operator -- who may command every robot's position2d -- may put it; agent hosts,
+# given single robots, get no rule that covers it (their rsal/<robot>/** never names the simulator's
+# node), and the simulator's own host serves it under its nodes.
+CROWD_CMD = "rsal/*/crowd/*/cmd"
 HELLO = "hello"  # the agents' discovery service (agents.services), answered per agent
 HOSTS = "hosts"  # host daemons (rsal host): hosts/<name>, hosts/<name>/rpc/<op>, hosts/<name>/run/**
 
@@ -168,7 +174,7 @@ def _rules_of(ident: Identity) -> list[dict]:
     elif ident.kind == "operator":
         everything = ["rsal/**", _owners("rsal/*/*/*"), "svc/**", "agents/**", "hosts/**"]
         rules += _read(f"{n}-all", everything) + _tokens(f"{n}-all", everything)
-        rules.append(_rule(f"{n}-drive", "ingress", ["put"], ["rsal/*/*/*/cmd"]))
+        rules.append(_rule(f"{n}-drive", "ingress", ["put"], ["rsal/*/*/*/cmd", CROWD_CMD]))
         rules += _call(f"{n}-rpc", ["rsal/*/*/*/rpc/*"])
         # launch, stop and list agent hosts on the host daemons (rsal run with 'machine:'), and
         # hold the launcher's token of its runs (the daemon stops a run when it goes)

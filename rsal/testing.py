@@ -125,6 +125,19 @@ class _Publisher(_Entity):
     def delete(self, **kw) -> None:
         self.session.delete(self.key)
 
+    # The fake session keeps every put (``last``), so it always counts as a listener.
+    matching_status = True
+
+    def declare_matching_listener(self, handler) -> _Matcher:
+        return _Matcher()
+
+
+class _Matcher:
+    """A publisher's matching listener in the fake session: never reports a change."""
+
+    def undeclare(self) -> None:
+        pass
+
 
 def _callable(handler) -> tuple[Callable, Callable | None]:
     """A plain callable, or a ``zenoh.handlers.Callback`` (its callback and its drop)."""
@@ -269,6 +282,10 @@ class FakeServer:
     requests: list[tuple[str, str, dict | None]] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     shared: dict = field(default_factory=dict)
+    unheard: set = field(default_factory=set)  # devices (as text) whose data nobody subscribes to
+
+    def listened(self, addr) -> bool:
+        return str(addr) not in self.unheard
 
     def send(self, addr, msg) -> None:
         self.sent.append((str(addr), msg))

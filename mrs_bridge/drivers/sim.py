@@ -15,6 +15,8 @@
   from its world model (:func:`robot_devices`, from the simulator's sensor plug-ins). Its
   ``position2d`` stops the robot when velocity commands stop for ``cmd_timeout`` s and latches an
   emergency stop (:mod:`mrs_bridge.baseguard`).
+  It also serves ``crowd:0`` (:mod:`mrs_bridge.drivers.simcrowd`): every robot of the world read
+  and commanded as arrays, one message per step.
 - ``mapfile`` (:mod:`mrs_bridge.drivers.mapfile`) serves the floorplan as a map.
 
 The readings' and device specs' conversions to wire messages are :mod:`mrs_bridge.drivers.simmsgs`
@@ -23,7 +25,8 @@ The readings' and device specs' conversions to wire messages are :mod:`mrs_bridg
 A simulator server calls every robot's ``sim`` driver after each step (1000 robots: 1000 calls
 every 100 ms), so :meth:`SimDriver.on_step` stays lean: its publications are planned once
 (:meth:`SimDriver._plan`), a ranger's scan is converted and encoded once for all the devices that
-show it (``ranger:0`` and its alias ``sonar:0``, ``DeviceServer.publish_each``), and the battery
+show it (``ranger:0`` and its alias ``sonar:0``, ``DeviceServer.publish_each``), a device nobody
+subscribes to gets no message built (``Driver.listened``), and the battery
 state is built only when a power report is due or the low-battery latch changes
 (docs/benchmarks.md, "Simulator server CPU at 1000 sonar robots"). The module is a little over
 500 lines because both drivers share the one world binding and its error handling.
@@ -93,8 +96,9 @@ class SimParams:
 
 @register("simulation")
 class SimulationDriver(Driver):
-    interfaces = ("simulation",)
-    data_types = {"simulation": "SimulationData"}
+    interfaces = ("simulation", "crowd")
+    data_types = {"simulation": "SimulationData", "crowd": "CrowdData"}
+    cmd_types = {"crowd": "CrowdCmd"}
 
     def __init__(self, cfg, server):
         super().__init__(cfg, server)
@@ -125,6 +129,10 @@ class SimulationDriver(Driver):
         self._wall0 = time.monotonic()
         self._sim0 = world.time
         self._quit = False
+        from .simcrowd import CrowdView
+
+        self.crowds = [CrowdView(self, a) for a in cfg.provides if a.interface == "crowd"]
+        self._sim_addrs = [a for a in cfg.provides if a.interface == "simulation"]
 
     def setup(self) -> None:
         # The sim drivers of this world cannot work without it: they fail when this driver fails.
@@ -148,11 +156,13 @@ class SimulationDriver(Driver):
         if w.advance():
             for d in self.server.drivers_of(SimDriver):
                 self.server.call_driver(d, d.on_step, w)
+            for c in self.crowds:
+                c.on_step(w)
         if now - self._last_pub >= 0.1:
             self._last_pub = now
             wall = now - self._wall0
             rtf = (w.time - self._sim0) / wall if wall > 0 else 0.0
-            for a in self.cfg.provides:
+            for a in self._sim_addrs:
                 self.publish(a, SimulationData(w.time, w.steps, w.paused, rtf))
 
     def _check_timeouts(self) -> None:
@@ -160,7 +170,16 @@ class SimulationDriver(Driver):
         for d in self.server.drivers_of(SimDriver):
             d.check_timeout()
 
+    def on_cmd(self, addr, msg):
+        """A crowd ``cmd`` (:class:`~rsal.interfaces.crowd.CrowdCmd`, decoded by the server)."""
+        crowd = next((c for c in self.crowds if c.addr == addr), None)
+        if crowd is None:
+            raise MessageError(f"{addr} takes no commands")
+        crowd.command(msg)
+
     def ops(self, addr):
+        if addr.interface == "crowd":
+            return []
         return [
             "get_pose",
             "get_poses",
@@ -175,6 +194,9 @@ class SimulationDriver(Driver):
         ]
 
     def geometry(self, addr):
+        crowd = next((c for c in self.crowds if c.addr == addr), None)
+        if crowd is not None:
+            return crowd.geometry()
         return {
             "interval_sim": self.world.spec.interval_sim,
             "speedup": self.speedup if math.isfinite(self.speedup) else 0,
@@ -184,6 +206,8 @@ class SimulationDriver(Driver):
     def on_rpc(self, addr, op, args):
         from simulator import ModelError, OutOfWorld
 
+        if addr.interface == "crowd":
+            return super().on_rpc(addr, op, args)
         w = self.world
         try:
             if op == "get_pose":
@@ -243,6 +267,8 @@ class SimulationDriver(Driver):
                 left[0] -= 1
                 for d in self.server.drivers_of(SimDriver):
                     self.server.call_driver(d, d.on_step, w)
+                for c in self.crowds:
+                    c.on_step(w)
                 if time.perf_counter() >= t_end:
                     break
             return None if left[0] else {"t": w.time, "steps": w.steps}
@@ -367,23 +393,30 @@ class SimDriver(Driver):
         if self.guard.estop or not self.motors:  # also over the world's own ctrl controllers (Stage wander)
             w.halt(self.model)
         t = w.time
-        v, om = w.velocity(self.model)
         plan = self._publish_plan
         if plan is None:
             plan = self._publish_plan = self._plan()
+        heard = self.server.listened
         for iface, a in plan:
             if iface == "position2d":
+                if not heard(a):  # nobody subscribes: no message built (a crowd reader may read all robots)
+                    continue
                 pose = w.get_pose(self.model) if self.gps else w.odometry(self.model)
+                v, om = w.velocity(self.model)
                 g = self.guard
                 self.publish(a, Position2dData(t, pose, (v, 0.0, om), w.stalled(self.model), g.timed_out, g.estop))
             elif iface == "ranger":
                 src, addrs = a
+                if not any(heard(x) for x in addrs):
+                    continue
                 r = w.ranger(self.model, src)
                 if r is None or self._last_scan.get(src) == r.time:
                     continue
                 self._last_scan[src] = r.time
                 self.publish_each(addrs, simmsgs.ranger_data(r))
             elif iface == "blobfinder":
+                if not heard(a):
+                    continue
                 blobs = w.blobfinder(self.model, a.index)
                 self.publish(a, simmsgs.blobfinder_data(t, self.spec.blobfinders[a.index], blobs))
             elif iface == "gripper":
@@ -397,6 +430,8 @@ class SimDriver(Driver):
                     )
                 self._last_grip[a] = now_state
             elif iface == "bumper":
+                if not heard(a):
+                    continue
                 b = w.bumper(self.model, a.index)
                 if b is None or self._last_contact.get(a) == b.time:
                     continue

@@ -89,6 +89,7 @@ class DeviceServer(_Intake, _Rpc, _Devices):
             "rpc": 0,
             "rejected": 0,
             "published": 0,
+            "unheard": 0,
             "too_large": 0,
             "dropped": 0,
             "busy": 0,
@@ -98,7 +99,7 @@ class DeviceServer(_Intake, _Rpc, _Devices):
         self._latest_lock = threading.Lock()
         self._reported = (0, 0, 0)  # too_large, dropped, busy already warned about
         self._failed = 0  # drivers that failed (the loop checks whether any still works)
-        self._pub_cache: dict[int, tuple[DeviceAddr, Any]] = {}  # id(addr) -> (addr, publisher's put)
+        self._pub_cache: dict[int, tuple[DeviceAddr, Any, Any]] = {}  # id(addr) -> (addr, publisher's put, device)
         self._slot_by_id: dict[int, _Slot] = {}  # id(driver) -> its slot (checked by identity on use)
         self._pending: list[tuple] = []  # long rpcs in progress: (device, op, reply key, query, Deferred)
 

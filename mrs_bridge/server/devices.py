@@ -7,6 +7,14 @@ first ``update()`` ("ready means ready", :meth:`_Devices._announce`); :meth:`_De
 withdraws and returns the tokens of hardware that stops answering. Outbound: ``publish`` (the
 hot path), ``publish_event``, and ``send``/``request`` to other devices, local or remote.
 
+A device's ``data`` is published only while someone listens: each data publisher has a Zenoh
+matching listener that keeps :attr:`_Device.listened` (a plain bool, read on the hot path) up to
+date, ``publish`` drops a message nobody subscribes to before encoding it, and drivers ask
+:meth:`_Devices.listened` before they build an expensive message (a simulator serving 1000 robots
+to a host that reads them all through the ``crowd`` device builds no per-robot samples;
+docs/benchmarks.md, "Crowd"). A subscriber declared later gets data from the first step after
+its interest reaches the server (Zenoh's matching status); events and rpcs are unchanged.
+
 :class:`_Devices` is a mixin of :class:`~mrs_bridge.server.DeviceServer`: it uses the server's
 ``session``, ``slots``, ``devices``, ``inbox``, ``stats``, ``_pub_cache`` and ``_on_sample``/``_on_query``.
 """
@@ -41,9 +49,14 @@ class _Device:
     cmd_sub: Any = None
     rpc_q: Any = None
     cmd_kinds: tuple | None = None  # message classes its cmd decodes to (None: not looked up yet)
+    matcher: Any = None  # the data publisher's matching listener
+    listened: bool = True  # a subscriber matches ``data`` (kept by ``matcher``; True until it reports)
+
+    def _on_match(self, status) -> None:  # Zenoh's thread: one attribute write, no zenoh call
+        self.listened = bool(status.matching)
 
     def undeclare(self) -> None:
-        for name in ("cmd_sub", "rpc_q", "pub", "event_pub", "token"):
+        for name in ("matcher", "cmd_sub", "rpc_q", "pub", "event_pub", "token"):
             ent = getattr(self, name)
             if ent is not None:
                 try:
@@ -81,6 +94,11 @@ class _Devices:
         s = self.session
         dev = _Device(addr, slot)
         dev.pub = s.declare_publisher(keys.data_key(addr))
+        # Data only while someone listens: the listener keeps a bool the hot path reads; the status
+        # is read once after declaring it, so a subscriber that existed before is not missed.
+        dev.matcher = dev.pub.declare_matching_listener(dev._on_match)
+        st = dev.pub.matching_status  # a MatchingStatus (zenoh 1.10; its stub says bool)
+        dev.listened = bool(getattr(st, "matching", st))
         # Reliable, but never blocking: the scheduler publishes, and a peer that reads slowly must
         # not hold it up (with BLOCK, a full link to one slow subscriber stalls the whole server).
         # An event to a congested peer is dropped for that peer only.
@@ -117,10 +135,24 @@ class _Devices:
             dev = self.devices.get(addr.without_key() if addr.key else addr)
             if dev is None or dev.pub is None:
                 return
-            hit = self._pub_cache[id(addr)] = (addr, dev.pub.put)
+            hit = self._pub_cache[id(addr)] = (addr, dev.pub.put, dev)
+        if not hit[2].listened:
+            self.stats["unheard"] += 1
+            return
         pack = getattr(msg, "to_msgpack", None)  # encode(), without a call on the hot path
         hit[1](pack() if pack is not None else encode(msg))
         self.stats["published"] += 1
+
+    def listened(self, addr: DeviceAddr) -> bool:
+        """Whether a subscriber matches the ``data`` of device ``addr`` now (a cached flag, no
+        network query): a driver asks before it builds a message that costs something."""
+        hit = self._pub_cache.get(id(addr))
+        if hit is None or hit[0] is not addr:
+            dev = self.devices.get(addr.without_key() if addr.key else addr)
+            if dev is None or dev.pub is None:
+                return False
+            hit = self._pub_cache[id(addr)] = (addr, dev.pub.put, dev)
+        return hit[2].listened
 
     def publish_each(self, addrs, msg) -> None:
         """Publish one message on several devices, encoded once: a sonar ring's scan on
@@ -133,7 +165,10 @@ class _Devices:
                 dev = self.devices.get(addr.without_key() if addr.key else addr)
                 if dev is None or dev.pub is None:
                     continue
-                hit = cache[id(addr)] = (addr, dev.pub.put)
+                hit = cache[id(addr)] = (addr, dev.pub.put, dev)
+            if not hit[2].listened:
+                self.stats["unheard"] += 1
+                continue
             if payload is None:
                 pack = getattr(msg, "to_msgpack", None)
                 payload = pack() if pack is not None else encode(msg)

@@ -1,7 +1,7 @@
 """The interfaces the platform knows: one module per Player interface, one registry.
 
 Each module (``position2d``, ``ranger`` with ``laser``/``sonar``, ``localize``, ``planner``,
-``map``, ``gripper``, ``blobfinder``, ``simulation``, ``power``, ``dio``, ``actarray``,
+``map``, ``gripper``, ``blobfinder``, ``simulation``, ``crowd``, ``power``, ``dio``, ``actarray``,
 ``bumper``, ``fiducial``) holds that interface's wire messages (``docs/protocol.md``), its typed
 geometry where it has one and its client proxy, and names them in an :class:`Interface` record.
 This registry collects the records; everything else derives from it:
@@ -24,6 +24,7 @@ from . import (
     actarray,
     blobfinder,
     bumper,
+    crowd,
     dio,
     fiducial,
     gripper,
@@ -62,6 +63,7 @@ MODULES = (
     gripper,
     blobfinder,
     simulation,
+    crowd,
     power,
     dio,
     actarray,

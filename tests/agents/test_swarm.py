@@ -34,7 +34,9 @@ from agents.scenarios.swarm import (
 )
 from agents.services import Message, Outcome, SendPosition
 from rsal.behaviours import Sectors
+from rsal.client import Fabric
 from rsal.data import Position
+from rsal.keys import DeviceAddr
 from rsal.transport import TransportArgs
 from simulator.loader import load_world
 from tests.conftest import MAPS, SPEEDUP, free_port, rsal_cmd, wait_until
@@ -142,6 +144,10 @@ def test_constructor_errors_are_clear():
         SwarmAgent("s0", robot="")
     with pytest.raises(ValueError, match="side"):
         SwarmAgent("s0", robot="r0", side="up")
+    with pytest.raises(ValueError, match="crowd: true needs vector: true"):
+        SwarmAgent("s0", robot="r0", crowd=True, vector=False)
+    with pytest.raises(ValueError, match="crowd 'yes' must be true or false"):
+        SwarmAgent("s0", robot="r0", crowd="yes")
     with pytest.raises(ValueError, match="robots"):
         SwarmMonitor("m", robots=0)
     with pytest.raises(ValueError, match="duration"):
@@ -172,14 +178,18 @@ async def _until(cond, timeout: float, what: str) -> None:
         await asyncio.sleep(0.05)
 
 
-async def _swarm_run(ep: str, n: int, duration: float, mixed: bool, follow) -> dict:
+async def _swarm_run(ep: str, n: int, duration: float, mixed: bool, follow, **kw) -> dict:
     async with AgentHost.connect(TransportArgs(connect=[ep])) as host:
         await asyncio.to_thread(follow, host.session)  # the agents' periods count simulated seconds
+        truth = Fabric(host.session, own_session=False)
+        sim_addr = DeviceAddr("sim", "simulation", 0)
+        before = await asyncio.to_thread(truth.rpc, sim_addr, "get_poses", {}, timeout=30)
         verdicts: list[Outcome] = []
         t0 = time.monotonic()
         # mixed: every other agent has its own subscription and blackboard instead of the host's
         agents = [
-            SwarmAgent(f"swarm{i}", robot=f"r{i}", startup_timeout=120, shared=not (mixed and i % 2)) for i in range(n)
+            SwarmAgent(f"swarm{i}", robot=f"r{i}", startup_timeout=120, shared=not (mixed and i % 2), **kw)
+            for i in range(n)
         ]
         await asyncio.gather(*(host.start(a) for a in agents))
         started = time.monotonic() - t0
@@ -189,6 +199,10 @@ async def _swarm_run(ep: str, n: int, duration: float, mixed: bool, follow) -> d
         await _until(lambda: mon.verdict is not None, duration * 4 + 120, "the monitor's verdict")
         verdicts.append(mon.verdict)
         moved = [a.pioneer.distance for a in agents]
+        after = await asyncio.to_thread(truth.rpc, sim_addr, "get_poses", {}, timeout=30)
+        p0 = dict(zip(before["names"], before["poses"], strict=True))
+        p1 = dict(zip(after["names"], after["poses"], strict=True))
+        truly_moved = [math.dist(p0[a.robot][:2], p1[a.robot][:2]) for a in agents]  # ground truth
         # Stop the broadcasts, then every receiver must have got every message of every sender.
         for a in agents:
             a.stop_broadcast()
@@ -222,6 +236,7 @@ async def _swarm_run(ep: str, n: int, duration: float, mixed: bool, follow) -> d
             "p99_ms": 1000 * hist.quantile(0.99),
             "max_ms": 1000 * hist.max_s,
             "moved": moved,
+            "truly_moved": truly_moved,
             "control_load": hub.load() if hub else math.nan,
             "overruns": hub.overruns if hub else -1,
             "closest": mon.closest,
@@ -232,14 +247,16 @@ async def _swarm_run(ep: str, n: int, duration: float, mixed: bool, follow) -> d
         }
 
 
-def _run_swarm_test(procs, sim_time, tmp_path, n: int, duration: float, speedup: str, mixed: bool = False) -> dict:
+def _run_swarm_test(
+    procs, sim_time, tmp_path, n: int, duration: float, speedup: str, mixed: bool = False, **kw
+) -> dict:
     world = write_crowd_world(tmp_path / f"crowd{n}.world", n)
     ep = f"tcp/127.0.0.1:{free_port()}"
     sim = procs(rsal_cmd("sim", str(world), "--listen", ep, "--no-map", "--speedup", speedup))
     wait_until(lambda: "[sim]" in sim.output() or not sim.alive(), 60, "the simulator's start line")
     assert sim.alive(), sim.output()
     t0 = time.monotonic()
-    r = asyncio.run(_swarm_run(ep, n, duration, mixed, sim_time))
+    r = asyncio.run(_swarm_run(ep, n, duration, mixed, sim_time, **kw))
     r["wall_s"] = time.monotonic() - t0
     loss = r["want"] - r["got"]
     pct = 100.0 * r["got"] / r["want"] if r["want"] else 0.0
@@ -265,6 +282,21 @@ def test_ten_robots_swarm(procs, sim_time, tmp_path):
     assert v.ok, v.text
 
 
+def test_ten_robots_swarm_through_the_crowd_device(procs, sim_time, tmp_path):
+    """The host reads and commands its ten robots through the simulator's crowd device (one
+    describe, one data message per step, one command message per cycle): the robots drive on
+    ground truth and every broadcast reaches every subscriber."""
+    r = _run_swarm_test(procs, sim_time, tmp_path, 10, 15.0, SPEEDUP, crowd=True)
+    v = r["verdict"]
+    assert v.final and v.event == "verdict" and "10 robots" in v.text
+    assert "no overlap" in v.text
+    assert r["got"] == r["want"] > 0, "every position message must reach every subscriber"
+    assert sum(d > 1.0 for d in r["truly_moved"]) >= 8, f"the robots must drive (ground truth): {r['truly_moved']}"
+    assert sum(d > 1.0 for d in r["moved"]) >= 8, f"and count their odometry: {r['moved']}"
+    assert r["spread"][1] > r["spread"][0] + 0.5, f"the crowd must spread out: {r['spread']}"
+    assert v.ok, v.text
+
+
 @pytest.mark.timeout(600)
 def test_hundred_robots_sixty_seconds(procs, sim_time, tmp_path):
     r = _run_swarm_test(procs, sim_time, tmp_path, 100, 60.0, SPEEDUP_CROWD)
@@ -278,11 +310,13 @@ def test_hundred_robots_sixty_seconds(procs, sim_time, tmp_path):
 
 
 # ---------------------------------------------------------------------------- neighbourhood
-def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, sim_time, tmp_path):
+@pytest.mark.parametrize("crowd", [False, True], ids=["proxies", "crowd"])
+def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, sim_time, tmp_path, crowd):
     """16 robots 2.5 m apart (gps: their position2d is the true pose), neighbourhood 3 m in cells
     of 1.5 m: the monitor's ground-truth verdict has 100 % delivery within the radius; no message
     reached a receiver farther than the reach of its cells; some broadcasts were out of every
-    cell's reach (the scoping works) and robots crossed cell borders."""
+    cell's reach (the scoping works) and robots crossed cell borders. Both with the robots' device
+    proxies and through the simulator's crowd device (``crowd: true``, the ``thousand`` app's path)."""
     from agents.cells import cell_of
 
     n, radius, cell, duration = 16, 3.0, 1.5, 20.0
@@ -296,7 +330,9 @@ def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, s
         async with AgentHost.connect(TransportArgs(connect=[ep])) as host:
             await asyncio.to_thread(sim_time, host.session)
             agents = [
-                SwarmAgent(f"swarm{i}", robot=f"r{i}", startup_timeout=120, neighbourhood=radius, cell_size=cell)
+                SwarmAgent(
+                    f"swarm{i}", robot=f"r{i}", startup_timeout=120, neighbourhood=radius, cell_size=cell, crowd=crowd
+                )
                 for i in range(n)
             ]
             # latency is the benchmark's to judge; a loaded machine (p99 up to 0.8 s seen) must not fail this

@@ -424,3 +424,34 @@ def test_a_secured_run_launches_on_the_robot_hosts_daemon_and_an_agent_host_cann
         assert daemon.output().count("launched run") == 1
     finally:
         daemon.close()
+
+
+def test_only_the_operator_may_command_the_simulators_crowd():
+    """The crowd device's cmd moves every robot of a simulator: only a role that may command every
+    robot's position2d may put it (the operator); an agent host given robots, a robot host of other
+    nodes and a viewer get no rule that covers it."""
+    from rsal.secure import acl
+
+    key = zenoh.KeyExpr("rsal/sim/crowd/0/cmd")
+    idents = [
+        Identity("simhost", "robot", nodes=["sim", "r0", "r1"]),
+        Identity("r2", "robot", nodes=["r2"]),
+        Identity("hostA", "agents", agents=["swarm0"], services=["send_position"], robots=["r0", "r1"]),
+        Identity("op", "operator"),
+        Identity("view", "viewer"),
+    ]
+    table = acl(idents)
+    rules = {r["id"]: r for r in table["rules"]}
+
+    def may_put(name: str) -> bool:
+        ids = next(p["rules"] for p in table["policies"] if p["subjects"] == [name])
+        return any(
+            "put" in rules[i]["messages"]
+            and rules[i]["flows"] == ["ingress"]
+            and any(zenoh.KeyExpr(k).intersects(key) for k in rules[i]["key_exprs"])
+            for i in ids
+        )
+
+    assert may_put("op")
+    assert may_put("simhost")  # the simulator's own host serves (and may drive) its nodes
+    assert not may_put("hostA") and not may_put("r2") and not may_put("view")

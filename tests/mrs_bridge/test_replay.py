@@ -239,7 +239,10 @@ def test_count_with_rate_inf_sends_that_many_as_fast_as_it_goes(port, fabric_fac
         node.wait_for("r0:laser:0", timeout=10)
         d = fab.device("r0:laser:0").describe()
         assert d.rate == 0.0 and d.geometry["count"] == 25
-        assert drv.sent == 25 and srv.server.stats["published"] == 25
+        # nobody subscribed to the scans, so the server dropped them before encoding (data go out
+        # only while someone listens): every one of the 25 reached it, none was put
+        st = srv.server.stats
+        assert drv.sent == 25 and st["published"] + st["unheard"] == 25 and st["published"] == 0
         assert srv.error is None
     finally:
         srv.close()

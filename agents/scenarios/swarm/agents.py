@@ -44,15 +44,17 @@ import numpy as np
 from agents.cells import cell_of
 from agents.cells import margin as cell_margin
 from agents.classes import RobotAgent
-from agents.hub import RobotHub
+from agents.hub import RobotHub, robot_xy
 from agents.registry import agent_class
 from agents.services import Message, SendPosition
 from rsal.clock import clock
 from rsal.data import Board, BoardObject, Position
+from rsal.keys import DeviceAddr
 from rsal.msgs import ErrorCode, RpcError
 from rsal.robot import Pioneer, RobotError
 
 from .behaviour import SwarmPioneer, away_from, away_headings
+from .crowd import CrowdRobot, CrowdStep, drop_link, link_of
 from .ledger import NearLedger, Received
 from .messages import STATS_SERVICE
 from .metrics import LatencyHistogram, latency_bin, sequence
@@ -73,18 +75,17 @@ class _Headings:
         self.of: dict[str, float | None] = {}
 
     def update(self) -> None:
-        agents = [
-            a
-            for a in self.hub.agents.values()
-            if isinstance(a, SwarmAgent)
-            and a.pioneer is not None
-            and a.frame == "map"
-            and a.pioneer.position2d.latest is not None
-        ]
+        agents, mine = [], []
+        for a in self.hub.agents.values():
+            if isinstance(a, SwarmAgent) and a.pioneer is not None and a.frame == "map":
+                p = robot_xy(a.pioneer)
+                if p is not None:
+                    agents.append(a)
+                    mine.append(p)
         if not agents:
             return
         xy, index = self.hub.received_positions()
-        me = np.array([a.pioneer.position2d.latest.pose[:2] for a in agents], dtype=float)
+        me = np.array(mine, dtype=float)
         radius = np.array([min(a.disperse_radius, a.neighbourhood or a.disperse_radius) for a in agents])
         own = np.array([index.get(a.robot, -1) for a in agents])
         h = away_headings(me, xy, radius, own)
@@ -116,6 +117,11 @@ class SwarmAgent(RobotAgent):
     ``vector`` (default true): with the shared subscription, the host's hub runs one vectorised
     behaviour step for all its swarm robots per control cycle (:class:`.vector.HostStep`, the same
     behaviour on arrays); false: this robot runs its own cycle.
+
+    ``crowd`` (default false): the host reads and commands its robots through the simulator's
+    ``crowd`` device (:mod:`.crowd`: one describe, one message per simulation step in, one command
+    message per control cycle out) instead of two device proxies per robot; it needs the shared
+    subscription and the vectorised step.
     """
 
     capabilities = ("send_position", STATS_SERVICE)
@@ -142,6 +148,7 @@ class SwarmAgent(RobotAgent):
         margin: float | None = None,
         max_speed: float = 0.5,
         vector: bool = True,
+        crowd: bool = False,
     ):
         super().__init__(
             agent_id,
@@ -165,6 +172,13 @@ class SwarmAgent(RobotAgent):
         if not isinstance(vector, bool):
             raise ValueError(f"agent {agent_id}: vector {vector!r} must be true or false")
         self.vector = vector
+        if not isinstance(crowd, bool):
+            raise ValueError(f"agent {agent_id}: crowd {crowd!r} must be true or false")
+        if crowd and not (vector and shared):
+            raise ValueError(
+                f"agent {agent_id}: crowd: true needs vector: true and shared: true (the host's batch step)"
+            )
+        self.crowd = crowd
         for name, v in (("neighbourhood", neighbourhood), ("cell_size", cell_size), ("max_speed", max_speed)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
                 raise ValueError(f"agent {agent_id}: {name} {v!r} must be a number of metres (per second) >= 0")
@@ -281,7 +295,12 @@ class SwarmAgent(RobotAgent):
         if not self.shared:
             self.subscribe(SendPosition.SERVICE, self.receive)
         try:
-            self.pioneer = await asyncio.to_thread(self._build_shared, self._hub)
+            if self.crowd:
+                self.pioneer = await asyncio.to_thread(self._build_crowd, self._hub)
+                if not isinstance(self._hub.batch, CrowdStep):
+                    self._hub.batch = CrowdStep(self.pioneer.link, lambda: clock().now())
+            else:
+                self.pioneer = await asyncio.to_thread(self._build_shared, self._hub)
         except BaseException:
             self._hub.detach(self)
             self._hub = None
@@ -308,7 +327,7 @@ class SwarmAgent(RobotAgent):
                 )
             elif self.shared:
                 self._hub.listen(_account_shared)
-            if self.vector and self.shared and self._hub.batch is None:
+            if self.vector and self.shared and not self.crowd and self._hub.batch is None:
                 self._hub.batch = HostStep(lambda: clock().now())  # one step for all the host's swarm robots
         except ValueError as e:
             self._hub.detach(self)
@@ -371,9 +390,43 @@ class SwarmAgent(RobotAgent):
             raise TimeoutError(f"robot {name!r}: its devices did not answer in time ({e})") from None
         return robot
 
+    def _build_crowd(self, hub: RobotHub) -> CrowdRobot:  # a worker thread
+        """The robot as a row of the simulator's crowd device (:mod:`.crowd`); the host's first agent
+        fetches the layout, the others find their row in it."""
+        name = self.robot
+        deadline = time.monotonic() + self.startup_timeout
+        try:
+            link = link_of(hub, self.startup_timeout)
+            robot = CrowdRobot(link, name, period=self.period)
+        except TimeoutError:
+            raise TimeoutError(
+                f"robot {name!r}: no crowd device appeared within {self.startup_timeout:g} s "
+                "(crowd: true needs a simulator that serves <simnode>:crowd:0)"
+            ) from None
+        except LookupError as e:
+            raise TimeoutError(f"robot {name!r}: {e}") from None
+        if link.layout.frames[robot.row] == "gps":
+            self.frame = "map"  # its position2d reports ground truth: the shared frame already
+        else:
+            start = self.start_pose
+            if start is None and self.simulation:
+                sim = hub.fabric.device(hub.node.wait_for("*:simulation:0", 1, self.startup_timeout)[0])
+                start = sim.get_pose(name)
+            if start is not None:
+                addr = DeviceAddr(name, "position2d", 0)
+                hub.fabric.rpc(addr, "set_odom", {"pose": list(start.as_tuple())}, timeout=self.startup_timeout)
+                self.frame = "map"
+        while robot.position is None:  # its first row
+            if self._abort.is_set():
+                raise InterruptedError(f"robot {name!r}: the wait for its crowd data was aborted")
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"robot {name!r}: no crowd data within {self.startup_timeout:g} s")
+            time.sleep(0.05)
+        return robot
+
     def pose_message(self) -> SendPosition | None:
         r = self.pioneer
-        pose = r.position2d.position if r is not None else None
+        pose = r.position if r is not None else None
         if pose is None:
             return None
         return SendPosition(self.robot, pose.x, pose.y, pose.yaw, self.frame)
@@ -419,6 +472,8 @@ class SwarmAgent(RobotAgent):
         if robot is not None:
             robot.stop()  # a put: does not block
         hub.detach(self)
+        if not hub.agents:
+            drop_link(hub)
 
     def status(self) -> str:
         got, want = self.delivery()
