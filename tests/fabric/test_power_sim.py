@@ -8,9 +8,9 @@ import threading
 from pathlib import Path
 
 import pytest
-from conftest import rsal_cmd, wait_until
 
 from rsal.interfaces.power import LOW_EVENT, RECOVERED_EVENT, lead_acid_volts
+from tests.conftest import rsal_cmd, wait_until
 
 # Small batteries with no constant draw: nothing drains until the test drives.
 # r0: 36 J, 30 % charged, 20 J/m: 20 % after 0.18 m, empty after 0.54 m.

@@ -21,9 +21,9 @@ import sys
 import msgpack
 import pytest
 import zenoh
-from conftest import MAPS, ROOT, Proc, free_port, rsal_cmd, wait_until
 
 from rsal.msgs import ErrorCode
+from tests.conftest import MAPS, ROOT, Proc, free_port, rsal_cmd, wait_until
 
 DOC = ROOT / "docs" / "protocol.md"
 WORLD = str(MAPS / "testroom.world")

@@ -12,14 +12,15 @@ from __future__ import annotations
 import time
 
 import pytest
-from conftest import MAPS, rsal_cmd, wait_until
 
 from rsal import keys
 from rsal.keys import DeviceAddr
 from rsal.msgs import ErrorCode, RpcError, parse_reply
+from tests.conftest import MAPS, rsal_cmd, wait_until
 
 WORLD = str(MAPS / "testroom.world")
-R0_DEVICES = 8  # r0's devices in testroom.world; plus sim:simulation:0 and the map
+R0_DEVICES = 8  # r0's devices in testroom.world; plus sim:simulation:0, sim:crowd:0 and the map
+SIM_DEVICES = 3
 
 
 def start_sim(procs, port, *extra):
@@ -30,7 +31,7 @@ def ready(procs, port, fabric_factory, *extra):
     server = start_sim(procs, port, *extra)
     fab = fabric_factory(port)
     node = fab.node("**")
-    node.wait_for("**", count=R0_DEVICES + 2, timeout=30)
+    node.wait_for("**", count=R0_DEVICES + SIM_DEVICES, timeout=30)
     return server, fab, node
 
 
@@ -82,7 +83,7 @@ def test_far_poses_are_refused_and_the_world_keeps_stepping(procs, port, fabric_
     # the world keeps stepping and every robot device is still there
     t0 = sim.wait_for_data(5).t
     wait_until(lambda: sim.latest.t > t0 + 0.5, 10, "the simulation time to advance")
-    assert len(node.devices()) == R0_DEVICES + 2 and server.alive()
+    assert len(node.devices()) == R0_DEVICES + SIM_DEVICES and server.alive()
     # a pose inside the world is still accepted
     assert sim.rpc("set_pose", name="r0", pose=[0.5, 0.0, 0.0])["pose"] == [0.5, 0.0, 0.0]
 

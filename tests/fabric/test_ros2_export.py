@@ -14,9 +14,9 @@ import time
 import numpy as np
 import pytest
 import zenoh
-from conftest import MAPS, Proc, free_port, rsal_cmd, wait_until
 
 from mrs_bridge.ros2.wire import Attachment, Entity, Kind
+from tests.conftest import MAPS, Proc, free_port, rsal_cmd, wait_until
 
 WORLD = str(MAPS / "testroom.world")
 SCAN_HASH = "RIHS01_64c191398013af96509d518dac71d5164f9382553fce5c1f8cca5be7924bd828"

@@ -12,9 +12,9 @@ import sys
 import time
 
 import pytest
-from conftest import MAPS, rsal_cmd, wait_until
 
 from rsal.msgs import ErrorCode, RpcError
+from tests.conftest import MAPS, rsal_cmd, wait_until
 
 WORLD = str(MAPS / "testroom.world")
 CMD_TIMEOUT = 0.5  # the bases' default

@@ -12,11 +12,11 @@ import time
 
 import msgpack
 import pytest
-from conftest import MAPS, rsal_cmd, wait_until
 
 from rsal import keys
 from rsal.keys import DeviceAddr
 from rsal.msgs import ErrorCode, RpcError
+from tests.conftest import MAPS, rsal_cmd, wait_until
 
 WORLD = str(MAPS / "testroom.world")
 R0 = {

@@ -25,7 +25,6 @@ import msgpack
 import numpy as np
 import pytest
 from bridge_helpers import LiveServer
-from conftest import free_port, wait_until
 
 import mrs_bridge.drivers  # noqa: F401  (registers the built-in drivers)
 from mrs_bridge.cli import sim_config
@@ -39,6 +38,7 @@ from rsal.keys import DeviceAddr
 from simulator.presets import pioneer2dx, pioneer3at
 from simulator.spec import WorldSpec
 from simulator.world import World
+from tests.conftest import free_port, wait_until
 
 CROWD = DeviceAddr("sim", "crowd", 0)
 

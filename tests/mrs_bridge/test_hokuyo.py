@@ -11,7 +11,6 @@ import signal
 
 import numpy as np
 import pytest
-from conftest import rsal_cmd, wait_until
 
 from mrs_bridge.config import ConfigError
 from mrs_bridge.drivers.hokuyo import (
@@ -28,6 +27,7 @@ from mrs_bridge.drivers.hokuyo import (
 )
 from mrs_bridge.emulators.urg import HokuyoEmulator
 from mrs_bridge.server import make_driver_config
+from tests.conftest import rsal_cmd, wait_until
 
 
 # ---------------------------------------------------------------------------- codec

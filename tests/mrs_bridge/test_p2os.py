@@ -13,7 +13,6 @@ from pathlib import Path
 
 import pytest
 from bridge_helpers import LiveServer
-from conftest import ROOT, free_port, wait_until
 
 from mrs_bridge.config import ConfigError, load_config, parse_config
 from mrs_bridge.driver import DRIVERS
@@ -33,6 +32,7 @@ from mrs_bridge.emulators.p2os import PioneerEmulator
 from rsal.interfaces.power import lead_acid_fraction
 from rsal.keys import parse_device
 from rsal.msgs import DioCmd, ErrorCode, GripperCmd, RpcError, VelocityCmd
+from tests.conftest import ROOT, free_port, wait_until
 
 WHERE = "p2os.toml: driver #1 (p2os)"
 

@@ -15,7 +15,6 @@ import tty
 
 import pytest
 from bridge_helpers import LiveServer
-from conftest import ROOT, free_port, wait_until
 
 import mrs_bridge.drivers.p2os  # noqa: F401  (registers the driver)
 from mrs_bridge.driver import DRIVERS
@@ -23,6 +22,7 @@ from mrs_bridge.emulators.p2os import PioneerEmulator, SipState, encode_sip, fra
 from mrs_bridge.emulators.urg import HokuyoEmulator, answer, scan_block
 from mrs_bridge.hw.p2os import decode_sip, gripper_state
 from mrs_bridge.hw.scip import decode_scan, parse_fields, parse_frame, status_text
+from tests.conftest import ROOT, free_port, wait_until
 
 
 @pytest.mark.parametrize("name", ["__init__.py", "p2os.py", "urg.py"])

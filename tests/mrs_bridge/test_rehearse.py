@@ -15,12 +15,12 @@ import time
 
 import numpy as np
 import pytest
-from conftest import ROOT, rsal_cmd, wait_until
 
 from mrs_bridge.emulators.urg import SENSORS
 from mrs_bridge.rehearse.cli import user_config
 from mrs_bridge.rehearse.coupling import WorldLaser, WorldRobot
 from rsal.msgs import ErrorCode, RpcError, VelocityCmd
+from tests.conftest import ROOT, rsal_cmd, wait_until
 
 TESTROOM = ROOT / "maps" / "testroom.world"
 URG = SENSORS["URG-04LX"]

@@ -10,7 +10,6 @@ import time
 import numpy as np
 import pytest
 from bridge_helpers import LiveServer
-from conftest import wait_until
 
 from mrs_bridge.config import ConfigError, parse_config
 from mrs_bridge.driver import DRIVERS
@@ -19,6 +18,7 @@ from mrs_bridge.server import DeviceServer
 from rsal.keys import parse_device
 from rsal.msgs import Describe, ErrorCode, RangerData, RpcError
 from rsal.testing import FakeServer
+from tests.conftest import wait_until
 
 WHERE = "replay.toml: driver #1 (replay)"
 

@@ -8,7 +8,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import rsal_cmd, wait_until
+
+from tests.conftest import rsal_cmd, wait_until
 
 RSAL_SCRIPT = Path(sys.executable).with_name("rsal")
 

@@ -11,7 +11,6 @@ import msgpack
 import numpy as np
 import pytest
 from bridge_helpers import LiveServer
-from conftest import ROOT, free_port, wait_until
 
 from mrs_bridge.driver import Driver, OutOfRange
 from mrs_bridge.drivers.rangertolaser import RangerToLaser
@@ -20,6 +19,7 @@ from mrs_bridge.server import ServerError
 from rsal import keys
 from rsal.keys import DeviceAddr, parse_device
 from rsal.msgs import ErrorCode, RangerData, RpcError, VelocityCmd, encode, get_float, parse_reply
+from tests.conftest import ROOT, free_port, wait_until
 
 
 class Counter(Driver):

@@ -11,7 +11,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from bridge_helpers import LiveServer
-from conftest import wait_until
 
 import mrs_bridge.drivers  # noqa: F401  (registers the built-in drivers)
 from mrs_bridge.cli import sim_config
@@ -23,6 +22,7 @@ from rsal.keys import DeviceAddr
 from simulator.presets import fiducial_finder, pioneer_bumper
 from simulator.spec import ModelSpec, RangerSensorSpec, RangerSpec, WorldSpec
 from simulator.world import World
+from tests.conftest import wait_until
 
 
 def robot(name: str, pose=(0.0, 0.0, 0.0), **kw) -> ModelSpec:

@@ -113,7 +113,10 @@ def test_the_sim_driver_publishes_what_the_per_device_loop_did():
 def test_publish_each_puts_the_bytes_publish_puts_on_every_device():
     puts: dict[str, list[bytes]] = {}
     addrs = [DeviceAddr("r0", "ranger", 0), DeviceAddr("r0", "sonar", 0), DeviceAddr("r0", "laser", 0)]
-    devices = {a: SimpleNamespace(pub=SimpleNamespace(put=puts.setdefault(str(a), []).append), listened=True) for a in addrs[:2]}
+    devices = {
+        a: SimpleNamespace(pub=SimpleNamespace(put=puts.setdefault(str(a), []).append), listened=True)
+        for a in addrs[:2]
+    }
     srv = SimpleNamespace(devices=devices, _pub_cache={}, stats={"published": 0})
     w = _world()
     w.step()

@@ -8,13 +8,13 @@ import math
 
 import pytest
 from bridge_helpers import LiveServer
-from conftest import wait_until
 
 from mrs_bridge.driver import Driver
 from rsal.interfaces.bumper import Bumper, BumperData, BumperGeometry
 from rsal.interfaces.fiducial import Fiducial, FiducialData, FiducialGeometry, FiducialItem
 from rsal.keys import parse_device
 from rsal.msgs import GoalCmd, VelocityCmd
+from tests.conftest import wait_until
 
 BUMPER_GEO = {"pose": [0.0, 0.0, 0.0], "segments": [{"pose": [0.25, 0.0, 0.0], "length": 0.3}] * 2}
 FIDUCIAL_GEO = {"pose": [0.1, 0.0, 0.0], "fov": math.pi, "range_min": 0.0, "range_max": 5.0, "range_max_id": 3.0}

@@ -13,13 +13,13 @@ import time
 
 import numpy as np
 import pytest
-from conftest import MAPS
 from scipy import sparse
 from scipy.sparse import csgraph
 
 from mrs_bridge.nav.grid import NavGrid
 from mrs_bridge.nav.wavefront import Executive, PlanError, Wavefront
 from simulator.gridmap import GridMap
+from tests.conftest import MAPS
 
 FLOOR = ("floor.png", 0.05, (-31.475, -7.8))
 ARENA = ("arena.png", 0.1, (-64.0, -64.0))

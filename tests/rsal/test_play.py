@@ -16,10 +16,10 @@ import time
 import msgpack
 import pytest
 import zenoh
-from conftest import Proc, free_port, rsal_cmd, stock_session, wait_until
 from mcap.writer import CompressionType, Writer
 
 from rsal.record import Player, PlayOptions, Recording
+from tests.conftest import Proc, free_port, rsal_cmd, stock_session, wait_until
 
 LASER = "rsal/r0/laser/0"
 SECONDS, HZ = 120, 10

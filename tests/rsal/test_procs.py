@@ -10,9 +10,8 @@ import signal
 import sys
 import time
 
-from conftest import ROOT, wait_until
-
 from rsal.procs import REPO_ROOT, Child, python_env, stop_all
+from tests.conftest import ROOT, wait_until
 
 PARENT = """
 import subprocess, sys, time

@@ -18,12 +18,12 @@ import time
 
 import msgpack
 import pytest
-from conftest import MAPS, SPEEDUP, Proc, free_port, rsal_cmd, stock_session, wait_until
 from mcap.writer import Writer
 
 from rsal.cli import build_parser
 from rsal.errnet import run_guarded
 from rsal.record import Recording
+from tests.conftest import MAPS, SPEEDUP, Proc, free_port, rsal_cmd, stock_session, wait_until
 
 WORLD = str(MAPS / "testroom.world")
 RECORD_S = 3.0

@@ -13,7 +13,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from conftest import wait_until
 
 from rsal.behaviours import BehaviourParams, ListSectors, fuse
 from rsal.data import Position
@@ -21,6 +20,7 @@ from rsal.devices import Blobfinder, Gripper, Laser, Position2d, Ranger, Simulat
 from rsal.msgs import BlobData, BlobfinderData, Position2dData, RangerData
 from rsal.robot import ExploreRobot, Pioneer, Robot, RobotError
 from rsal.testing import FakeFabric
+from tests.conftest import wait_until
 
 LASER_GEOMETRY = {"kind": "laser", "pose": [0.0, 0.0, 0.0], "sensors": [{"pose": [0.0, 0.0, 0.0]}]}
 # eight front sonars like a Pioneer-2DX: -90 .. +90 degrees

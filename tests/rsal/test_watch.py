@@ -12,7 +12,6 @@ from types import SimpleNamespace
 import msgpack
 import numpy as np
 import pytest
-from conftest import MAPS, free_port, rsal_cmd, wait_until
 
 from rsal import interfaces
 from rsal.interfaces.bumper import BumperData
@@ -32,6 +31,7 @@ from rsal.watch import (
     scan_to_world,
 )
 from rsal.watch.convert import RED
+from tests.conftest import MAPS, free_port, rsal_cmd, wait_until
 
 LASER_GEO = {  # r0:laser:0 of maps/testroom.world: a URG 0.13 m ahead of the centre
     "kind": "laser",

@@ -32,12 +32,12 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import ROOT, Proc, free_port, wait_until
 
 # Submodules, not the package: under pytest, tests/simulator/ can shadow the package's __init__.
 from simulator.errors import WorldFileError
 from simulator.loader import load_world
 from simulator.world import World
+from tests.conftest import ROOT, Proc, free_port, wait_until
 
 DOC = ROOT / "docs" / "simulator.md"
 MAPS = ROOT / "maps"

@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import ROOT, rsal_cmd, wait_until
 from PIL import Image
 
 from simulator.controllers import StageWander
 from simulator.stageworld import load_stage_world
 from simulator.world import RangerReading, World
+from tests.conftest import ROOT, rsal_cmd, wait_until
 
 WORLDS = Path(__file__).parent / "fixtures" / "stage" / "stage4"
 
