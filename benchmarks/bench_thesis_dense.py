@@ -83,11 +83,9 @@ async def _judge(ep: str, robots: list[str], seconds: float, declare: bool, simd
         mon = ThesisSwarmMonitor("monitor", robots=robots, duration=seconds, startup_timeout=300, max_p99_ms=1000)
         await host.start(mon)
         seen: dict = {}
-        counts: list[int] = []  # AMCL's particle counts, sampled from the robots' localize data
         wall0, sim0, cpu0 = time.perf_counter(), clk.now(), _cpu_s(sim_pid)
         while mon.verdict is None:
             await asyncio.sleep(0.1)
-            counts += [a.localize.latest.particles for a in agents if a.localize is not None and a.localize.latest]
             c = await asyncio.to_thread(simdev.rpc, "contacts")
             for k, v in c["robots"].items():
                 if seen.get(k) != v:
@@ -110,7 +108,6 @@ async def _judge(ep: str, robots: list[str], seconds: float, declare: bool, simd
         sim_s = clk.now() - sim0
         rtf = sim_s / (time.perf_counter() - wall0)
         cpu = (_cpu_s(sim_pid) - cpu0) / max(sim_s, 1e-9)
-        n = np.array(counts or [0])
         e = np.array(mon.loc_errors)
         share, p95, worst = mon.localization()
         first = e[: max(1, int(20 / mon.sample_every))]
@@ -122,7 +119,6 @@ async def _judge(ep: str, robots: list[str], seconds: float, declare: bool, simd
             "worst": worst,
             "rtf": rtf,
             "cpu": cpu,
-            "particles": (float(np.mean(n)), float(np.percentile(n, 95)), int(n.max())),
             "verdict": mon.verdict.text,
         }
 
@@ -162,9 +158,7 @@ def main() -> None:
         print(
             f"bench=thesis_dense robots={a.rows * a.cols} seconds={a.seconds:g} declare={'on' if declare else 'off'} "
             f"contacts_robot={rr} contacts_wall={rw} within_0.5m={r['share']:.3f} first_20s={r['first20']:.3f} "
-            f"p95_m={r['p95']:.2f} worst_m={r['worst']:.2f} rtf={r['rtf']:.2f} cpu_s_per_sim_s={r['cpu']:.2f} "
-            f"particles_mean={r['particles'][0]:.0f} particles_p95={r['particles'][1]:.0f} "
-            f"particles_max={r['particles'][2]}",
+            f"p95_m={r['p95']:.2f} worst_m={r['worst']:.2f} rtf={r['rtf']:.2f} cpu_s_per_sim_s={r['cpu']:.2f}",
             flush=True,
         )
 
