@@ -332,6 +332,8 @@ class AmclDriver(Driver):
         }
         if self.map_info:
             g["map_size"] = list(self.map_info)
+        if self.filter is not None:
+            g["obstacles"] = int(self.filter.obstacles.shape[0])  # known obstacles declared now
         return g
 
     def publish_rate(self, addr) -> float:
