@@ -125,7 +125,9 @@ def run(
                     continue
                 origins, bearings = geo[r].beams(sc)
                 c0 = time.process_time()
-                done = a.sensor(sc.ranges, bearings, origins, sc.range_min, sc.range_max, beam_width=geo[r].beam_width(sc))
+                done = a.sensor(
+                    sc.ranges, bearings, origins, sc.range_min, sc.range_max, beam_width=geo[r].beam_width(sc)
+                )
                 cpu[v] += time.process_time() - c0
                 if done:
                     counts[v].append(a.particles.shape[0])

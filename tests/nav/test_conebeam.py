@@ -114,7 +114,9 @@ def test_casting_stops_past_the_reading_without_changing_any_score():
     ])  # fmt: skip
     assert (full > z + CUTOFF_SIGMAS * 0.1).all()  # every cast is cut short
     for z_rand in (0.2, 0.0):  # without a random term nothing is cut
-        got = cone_beam_jit(px, py, pth, bx, by, bang, z, CONE_RAYS, cm.blocked, cm.clear, RES, *ORIGIN, 5.0, 0.8, z_rand, 0.1)
+        got = cone_beam_jit(
+            px, py, pth, bx, by, bang, z, CONE_RAYS, cm.blocked, cm.clear, RES, *ORIGIN, 5.0, 0.8, z_rand, 0.1
+        )
         e = (z - full) / 0.1
         with np.errstate(divide="ignore"):
             want = np.log(0.8 * np.exp(-0.5 * e * e) / (0.1 * math.sqrt(2.0 * math.pi)) + z_rand / 5.0).sum(axis=1)

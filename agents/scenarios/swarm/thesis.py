@@ -20,8 +20,8 @@ the sonar ring's side gaps would miss them (echoes they explain are not walls to
 guard that re-seeds the localize device when its pose jumps away from where the robot's own
 odometry carried it (:meth:`ThesisPioneer.guard`). Its agent also declares the neighbours'
 broadcast positions to the localize device at the broadcast rate
-(:meth:`ThesisSwarmAgent.declare_neighbours`, a ``localize`` ``cmd``, or ``rpc/set_obstacles``): AMCL leaves out the echoes
-they explain instead of scoring them against a map without robots
+(:meth:`ThesisSwarmAgent.declare_neighbours`, a ``localize`` ``cmd``, or ``rpc/set_obstacles``):
+AMCL leaves out the echoes they explain instead of scoring them against a map without robots
 (:mod:`mrs_bridge.nav.knownobstacles`).
 
 :class:`ThesisSwarmMonitor` is the :class:`~agents.scenarios.swarm.monitor.SwarmMonitor` with the
