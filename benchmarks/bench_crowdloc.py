@@ -21,7 +21,9 @@ Two filters per robot are run on the same scans in the same run:
 Figures per variant: the share of robot-samples (every 0.5 s) within 0.5 m of the true pose, the
 95th percentile and the worst error, and the share of readings the known obstacles left out.
 Output: ``bench=crowdloc key=value ...`` lines.
-Usage: ``python benchmarks/bench_crowdloc.py [--rows 5] [--cols 6] [--seconds 40] [--seed 0]``
+Also per variant: the particle count the KLD bound reaches (mean and 95th percentile after each
+update) and the CPU milliseconds per sensor update. Usage:
+``python benchmarks/bench_crowdloc.py [--rows 5] [--cols 6] [--seconds 40] [--seed 0] [--pf-max-samples N]``
 """
 
 from __future__ import annotations
@@ -55,7 +57,15 @@ BOUND = 0.5  # m, the thesis swarm's verdict
 
 
 def run(
-    rows: int, cols: int, seconds: float, seed: int, broadcast: float, radius: float, disc: float, speed: float
+    rows: int,
+    cols: int,
+    seconds: float,
+    seed: int,
+    broadcast: float,
+    radius: float,
+    disc: float,
+    speed: float,
+    max_samples: int | None = None,
 ) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "crowd.world"
@@ -66,6 +76,8 @@ def run(
     standing = [n for n in world.robot_names if n not in names]
     still = {n: tuple(world.get_pose(n)) for n in standing}
     prm = {**profile.AMCL, **profile.AMCL_SONAR}
+    if max_samples is not None:
+        prm["pf_max_samples"] = max_samples
     variants = ("off", "on")
     filters = {v: {} for v in variants}
     est = {v: {} for v in variants}  # robot -> (estimate at its last update, odometry then)
@@ -79,6 +91,8 @@ def run(
         geo[r] = RangerGeometry(ranger_geometry(world.rangers(r)[0]))
     errors = {v: [] for v in variants}
     left_out = {v: [0, 0] for v in variants}
+    counts = {v: [] for v in variants}  # particles after each update
+    cpu = {v: 0.0 for v in variants}  # s of CPU in the sensor updates
     dt = world.spec.interval_sim
     every_sample = max(1, round(SAMPLE_EVERY / dt))
     every_broadcast = max(1, round(broadcast / dt))
@@ -110,7 +124,13 @@ def run(
                 if sc is None:
                     continue
                 origins, bearings = geo[r].beams(sc)
-                if a.sensor(sc.ranges, bearings, origins, sc.range_min, sc.range_max, beam_width=geo[r].beam_width(sc)):
+                c0 = time.process_time()
+                done = a.sensor(
+                    sc.ranges, bearings, origins, sc.range_min, sc.range_max, beam_width=geo[r].beam_width(sc)
+                )
+                cpu[v] += time.process_time() - c0
+                if done:
+                    counts[v].append(a.particles.shape[0])
                     m, _ = a.estimate()
                     est[v][r] = (tuple(float(x) for x in m), odo[r])
                     left_out[v][0] += a.n_explained
@@ -129,6 +149,10 @@ def run(
             "p95": float(np.percentile(e, 95)),
             "worst": float(e.max()),
             "explained": left_out[v][0] / max(1, left_out[v][1]),
+            "particles": float(np.mean(counts[v])) if counts[v] else 0.0,
+            "particles_p95": float(np.percentile(counts[v], 95)) if counts[v] else 0.0,
+            "updates_per_robot_s": len(counts[v]) / (len(names) * seconds),
+            "cpu_ms_per_update": 1e3 * cpu[v] / max(1, len(counts[v])),
         }
     return out
 
@@ -143,16 +167,22 @@ def main() -> None:
     ap.add_argument("--radius", type=float, default=5.0, help="m: neighbours declared (default 5)")
     ap.add_argument("--disc", type=float, default=0.55, help="m: a neighbour's disc radius (default 0.55)")
     ap.add_argument("--speed", type=float, default=0.4, help="m/s the robots wander at (default 0.4)")
+    ap.add_argument(
+        "--pf-max-samples", type=int, default=None, help="the filters' pf_max_samples (default: the sonar profile's)"
+    )
     a = ap.parse_args()
     if not (1 <= a.rows <= 10 and 1 <= a.cols <= 10):
         ap.error(f"--rows {a.rows} and --cols {a.cols} must be 1..10 (the thesis crowd is 10 x 10)")
-    r = run(a.rows, a.cols, a.seconds, a.seed, a.broadcast, a.radius, a.disc, a.speed)
+    r = run(a.rows, a.cols, a.seconds, a.seed, a.broadcast, a.radius, a.disc, a.speed, a.pf_max_samples)
+    nmax = a.pf_max_samples or {**profile.AMCL, **profile.AMCL_SONAR}["pf_max_samples"]
     for v in ("off", "on"):
         f = r[v]
         print(
             f"bench=crowdloc robots={a.rows * a.cols} seconds={a.seconds:g} seed={a.seed} known={v} "
             f"within_0.5m={f['within']:.3f} p95_m={f['p95']:.2f} worst_m={f['worst']:.2f} "
-            f"explained={f['explained']:.3f} wall_s={r['wall_s']:.0f}"
+            f"explained={f['explained']:.3f} pf_max_samples={nmax} particles_mean={f['particles']:.0f} "
+            f"particles_p95={f['particles_p95']:.0f} updates_per_robot_s={f['updates_per_robot_s']:.2f} "
+            f"cpu_ms_per_update={f['cpu_ms_per_update']:.2f} wall_s={r['wall_s']:.0f}"
         )
 
 

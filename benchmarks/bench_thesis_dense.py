@@ -64,7 +64,13 @@ class Quiet(ThesisSwarmAgent):
         pass
 
 
-async def _judge(ep: str, robots: list[str], seconds: float, declare: bool, simdev) -> dict:
+def _cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) the process has used so far, from /proc (Linux)."""
+    f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
+
+
+async def _judge(ep: str, robots: list[str], seconds: float, declare: bool, simdev, sim_pid: int) -> dict:
     async with AgentHost.connect(TransportArgs(connect=[ep])) as host:
         clk = await asyncio.to_thread(use_sim_time, host.session, "sim")
         await asyncio.to_thread(clk.wait_started, 60)
@@ -77,7 +83,7 @@ async def _judge(ep: str, robots: list[str], seconds: float, declare: bool, simd
         mon = ThesisSwarmMonitor("monitor", robots=robots, duration=seconds, startup_timeout=300, max_p99_ms=1000)
         await host.start(mon)
         seen: dict = {}
-        wall0, sim0 = time.perf_counter(), clk.now()
+        wall0, sim0, cpu0 = time.perf_counter(), clk.now(), _cpu_s(sim_pid)
         while mon.verdict is None:
             await asyncio.sleep(0.1)
             c = await asyncio.to_thread(simdev.rpc, "contacts")
@@ -99,7 +105,9 @@ async def _judge(ep: str, robots: list[str], seconds: float, declare: bool, simd
                         f"at ({tp.x:.2f}, {tp.y:.2f}, {math.degrees(tp.yaw):.0f} deg)",
                         flush=True,
                     )
-        rtf = (clk.now() - sim0) / (time.perf_counter() - wall0)
+        sim_s = clk.now() - sim0
+        rtf = sim_s / (time.perf_counter() - wall0)
+        cpu = (_cpu_s(sim_pid) - cpu0) / max(sim_s, 1e-9)
         e = np.array(mon.loc_errors)
         share, p95, worst = mon.localization()
         first = e[: max(1, int(20 / mon.sample_every))]
@@ -110,6 +118,7 @@ async def _judge(ep: str, robots: list[str], seconds: float, declare: bool, simd
             "p95": p95,
             "worst": worst,
             "rtf": rtf,
+            "cpu": cpu,
             "verdict": mon.verdict.text,
         }
 
@@ -125,7 +134,7 @@ def run(rows: int, cols: int, seconds: float, speedup: str, declare: bool) -> di
         with Fabric.connect(TransportArgs(connect=[ep])) as fab:
             node = fab.node("*:planner:0")
             node.wait_for("*:planner:0", len(robots), 300)
-            r = asyncio.run(_judge(ep, robots, seconds, declare, fab.device("sim:simulation:0")))
+            r = asyncio.run(_judge(ep, robots, seconds, declare, fab.device("sim:simulation:0"), sim.pid))
             node.close()
             return r
     finally:
@@ -149,7 +158,7 @@ def main() -> None:
         print(
             f"bench=thesis_dense robots={a.rows * a.cols} seconds={a.seconds:g} declare={'on' if declare else 'off'} "
             f"contacts_robot={rr} contacts_wall={rw} within_0.5m={r['share']:.3f} first_20s={r['first20']:.3f} "
-            f"p95_m={r['p95']:.2f} worst_m={r['worst']:.2f} rtf={r['rtf']:.2f}",
+            f"p95_m={r['p95']:.2f} worst_m={r['worst']:.2f} rtf={r['rtf']:.2f} cpu_s_per_sim_s={r['cpu']:.2f}",
             flush=True,
         )
 

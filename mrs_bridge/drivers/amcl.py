@@ -35,7 +35,9 @@ map, ``get_particles`` returns ``particles`` (float32 x, y, yaw triplets) and ``
 ``set_obstacles`` (``obstacles`` [[x, y, radius], ...] m in the map frame, ``ttl`` s) declares known
 moving obstacles -- a swarm's neighbours where their broadcasts put them -- whose echoes the filter
 leaves out (:mod:`mrs_bridge.nav.knownobstacles`) until ``ttl`` s of the odometry's clock have passed
-or the next ``set_obstacles`` replaces them.
+or the next ``set_obstacles`` replaces them. The same declaration also goes as a command, fire and
+forget (``cmd``, :class:`rsal.interfaces.localize.ObstaclesCmd`: ``obstacles``, ``ttl``): a swarm
+declares at its broadcast rate and needs no reply.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ from typing import ClassVar
 import numpy as np
 
 from rsal.geometry import compose, relative
+from rsal.interfaces.localize import ObstaclesCmd
 from rsal.interfaces.ranger import RangerGeometry
 from rsal.msgs import (
     ErrorCode,
@@ -132,7 +135,7 @@ class AmclDriver(Driver):
         self._odom_vel = (0.0, 0.0, 0.0)
         self._odom_t = 0.0  # time of the last odometry message (the device's clock)
         self._est = None  # (pose at the last update, odometry then, covariance)
-        self._hyps: list[Hypothesis] = []
+        self._hyps: list[Hypothesis] | None = []  # None: not clustered since the last update
         self.updates = 0
         self.skipped = 0
         self.update_ms = 0.0
@@ -218,10 +221,7 @@ class AmclDriver(Driver):
     def _after_update(self, t: float) -> None:
         mean, cov = self.filter.estimate()
         self._est = (tuple(float(v) for v in mean), self._odom, cov)
-        self._hyps = [
-            Hypothesis(min(1.0, float(w)), tuple(float(v) for v in m), tuple(float(v) for v in c.ravel()))
-            for w, m, c in self.filter.hypotheses()[:8]
-        ]
+        self._hyps = None  # clustered when a localize message goes out (hypotheses()), not per update
         self._publish_localize(t)
         self._publish_pose(t)
 
@@ -233,10 +233,24 @@ class AmclDriver(Driver):
         if p is None:
             return
         self._last_localize = time.monotonic()
+        to = [a for a in self.provided("localize") if self.listened(a)]
+        if not to:  # nobody subscribes: no message, and no clustering for one
+            return
         cov = tuple(float(v) for v in self._est[2].ravel())
-        msg = LocalizeData(t, p, cov, self._hyps, int(self.filter.particles.shape[0]), 0)
-        for a in self.provided("localize"):
+        msg = LocalizeData(t, p, cov, self.hypotheses(), int(self.filter.particles.shape[0]), 0)
+        for a in to:
             self.publish(a, msg)
+
+    def hypotheses(self) -> list[Hypothesis]:
+        """The filter's hypotheses (at most 8, heaviest first) as of its last update, clustered on
+        the first call after it: the clustering costs about as much as a sonar update, and only a
+        ``localize`` message that goes out needs it (the map-frame ``position2d`` does not)."""
+        if self._hyps is None:
+            self._hyps = [
+                Hypothesis(min(1.0, float(w)), tuple(float(v) for v in m), tuple(float(v) for v in c.ravel()))
+                for w, m, c in self.filter.hypotheses()[:8]
+            ]
+        return self._hyps
 
     def localized_pose(self) -> tuple[float, float, float] | None:
         """The last estimate moved on by the odometry since (map frame)."""
@@ -283,8 +297,7 @@ class AmclDriver(Driver):
                 raise RpcError(
                     ErrorCode.BAD_REQUEST, f"{addr} set_obstacles: ttl {ttl!r} must be a positive number of s"
                 )
-            self.filter.set_obstacles(discs)
-            self._obstacles_until = self._odom_t + float(ttl)
+            self._set_obstacles(discs, float(ttl))
             return {"obstacles": int(discs.shape[0])}
         if op == "get_particles":
             q = self.filter.particles
@@ -294,6 +307,19 @@ class AmclDriver(Driver):
                 "count": int(q.shape[0]),
             }
         return super().on_rpc(addr, op, args)
+
+    def on_cmd(self, addr, msg) -> None:
+        """``localize`` ``cmd``: an :class:`ObstaclesCmd`, ``rpc/set_obstacles`` without a reply (the
+        server decoded and checked it in its intake; a malformed one never gets here)."""
+        if addr.interface != "localize" or not isinstance(msg, ObstaclesCmd):
+            super().on_cmd(addr, msg)
+        if self.filter is None:
+            return  # no map yet: nothing to leave out, and the next declaration comes soon
+        self._set_obstacles(np.asarray(msg.obstacles, dtype=float).reshape(-1, 3), msg.ttl)
+
+    def _set_obstacles(self, discs: np.ndarray, ttl: float) -> None:
+        self.filter.set_obstacles(discs)
+        self._obstacles_until = self._odom_t + ttl
 
     def geometry(self, addr):
         g = {
@@ -306,6 +332,8 @@ class AmclDriver(Driver):
         }
         if self.map_info:
             g["map_size"] = list(self.map_info)
+        if self.filter is not None:
+            g["obstacles"] = int(self.filter.obstacles.shape[0])  # known obstacles declared now
         return g
 
     def publish_rate(self, addr) -> float:

@@ -578,14 +578,14 @@ class Amcl:
     def _explained(self, z, bearings, origins, width) -> np.ndarray:
         """The readings (``bearings``: one per reading) the known obstacles explain, judged at the
         weighted mean pose."""
-        mean, _ = _mean_cov(*self._weighed())
+        mean, _ = self._belief()
         return explained_by_obstacles(mean, z, bearings, origins, width, self.obstacles)
 
     def _unmodeled(self, z, bearings, origins, rays: int, range_max: float, margin: float) -> np.ndarray:
         """The distance filter (:mod:`mrs_bridge.nav.distfilter`) at the weighted mean pose, while
         the belief's position standard deviation is at most ``margin``; else nothing is left out.
         A sonar cone (``rays`` > 1 bearings per reading) predicts the least range across it."""
-        mean, cov = _mean_cov(*self._weighed())
+        mean, cov = self._belief()
         if math.sqrt(max(float(np.linalg.eigvalsh(cov[:2, :2])[-1]), 0.0)) > margin:
             return np.zeros(z.shape[0], dtype=bool)
         if rays > 1:
@@ -698,11 +698,17 @@ class Amcl:
         length); the mean includes the odometry motion since the last update. Cached between
         updates, so calling it at the odometry rate costs little.
         """
+        mean, cov = self._belief()
+        return compose_array(mean, self._pending()), cov.copy()
+
+    def _belief(self) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean and covariance of the particles as they are (no pending odometry), computed
+        once per change of particles or weights: a sonar update asks for it up to three times (known
+        obstacles, distance filter, estimate). Read-only arrays: callers copy to change them."""
         if self._cached is None or self._cached[0] != self._stamp:
             q, w = self._weighed()
             self._cached = (self._stamp, *_mean_cov(q, w))
-        _, mean, cov = self._cached
-        return compose_array(mean, self._pending()), cov.copy()
+        return self._cached[1], self._cached[2]
 
     def hypotheses(self) -> list[tuple[float, np.ndarray, np.ndarray]]:
         """``(weight, mean, covariance)`` per cluster of particles, heaviest first.

@@ -1,12 +1,14 @@
 """The ``localize`` interface: a localizer's pose estimate (Player's ``localize``; thesis
 eq. 3.3-3.4, the ``amcl`` driver).
 
-Messages :class:`LocalizeData` (``data``) of :class:`Hypothesis`; proxy :class:`Localize`.
+Messages :class:`LocalizeData` (``data``) of :class:`Hypothesis`, :class:`ObstaclesCmd` (``cmd``:
+known moving obstacles, the fire-and-forget form of ``rpc/set_obstacles``); proxy :class:`Localize`.
 Wire format: ``docs/protocol.md``.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,7 +17,7 @@ from ..data import Position
 from ..msgs import MessageError, _Msg, get_float, get_int, get_list, get_vec
 from .base import Device, Interface
 
-__all__ = ["Hypothesis", "LocalizeData", "Localize", "INTERFACE"]
+__all__ = ["Hypothesis", "LocalizeData", "ObstaclesCmd", "Localize", "INTERFACE"]
 
 
 def _cov9(m: dict, name: str) -> tuple[float, ...]:
@@ -66,6 +68,36 @@ class LocalizeData(_Msg):
         )
 
 
+@dataclass(frozen=True)
+class ObstaclesCmd(_Msg):
+    """localize ``cmd``: known moving obstacles, ``obstacles`` ``((x, y, radius), ...)`` (m, map
+    frame; a swarm's neighbours where their broadcasts put them), kept for ``ttl`` s (default 1.5)
+    or until the next declaration; the fire-and-forget form of ``rpc/set_obstacles`` (no reply)."""
+
+    obstacles: tuple[tuple[float, float, float], ...]
+    ttl: float = 1.5
+
+    @classmethod
+    def from_dict(cls, m: dict) -> ObstaclesCmd:
+        raw = m.get("obstacles")
+        if not isinstance(raw, list | tuple):
+            raise MessageError("field 'obstacles' must be a list of [x, y, radius] (m, map frame)")
+        discs = []
+        for i, v in enumerate(raw):
+            if (
+                not isinstance(v, list | tuple)
+                or len(v) != 3
+                or not all(isinstance(e, int | float) and not isinstance(e, bool) and math.isfinite(e) for e in v)
+                or not v[2] > 0
+            ):
+                raise MessageError(f"field 'obstacles'[{i}] = {v!r} must be [x, y, radius] with radius > 0 (m)")
+            discs.append((float(v[0]), float(v[1]), float(v[2])))
+        ttl = get_float(m, "ttl", 1.5)
+        if not ttl > 0:
+            raise MessageError(f"field 'ttl' {ttl!r} must be a positive number of s")
+        return cls(tuple(discs), ttl)
+
+
 class Localize(Device):
     """A localizer (Player's localize; the ``amcl`` driver): the robot's pose on the map with its
     covariance (thesis eq. 3.3-3.4) and the hypotheses behind it."""
@@ -106,6 +138,11 @@ class Localize(Device):
         obstacles = [[float(x), float(y), float(r)] for x, y, r in discs]
         return self.rpc_async("set_obstacles", timeout=timeout, obstacles=obstacles, ttl=float(ttl))
 
+    def declare_obstacles(self, discs, ttl: float = 1.5) -> None:
+        """:meth:`set_obstacles` as a command (``cmd``, :class:`ObstaclesCmd`): fire and forget, no
+        query and no reply; a malformed declaration is dropped by the server with a warning."""
+        self.send(ObstaclesCmd(tuple((float(x), float(y), float(r)) for x, y, r in discs), float(ttl)))
+
     def set_global(self, timeout: float = 5.0) -> dict:
         """Forget the pose: global localization over all free space."""
         return self.rpc("set_global", timeout=timeout)
@@ -121,6 +158,7 @@ INTERFACE = Interface(
     "localize",
     proxy=Localize,
     data=LocalizeData,
+    cmds=(ObstaclesCmd,),
     summary=_summary,
     doc="pose on the map with covariance and hypotheses",
 )

@@ -128,6 +128,7 @@ def test_the_agent_declares_its_neighbours_broadcast_positions_to_its_localize_d
             return np.array([[2.0, 1.0], [1.0, 4.0]])
 
     a = ThesisSwarmAgent("swarm0", robot="r0")
+    a.declare_by = "rpc"
     a.localize, a._hub = Loc((1.0, 1.0, 0.0)), Hub()
     a._obstacle_radius = 0.55
     a.declare_neighbours()
@@ -135,6 +136,32 @@ def test_the_agent_declares_its_neighbours_broadcast_positions_to_its_localize_d
     op, args = a.localize.calls[0]
     assert op == "set_obstacles" and args["ttl"] == a.obstacle_ttl
     assert args["obstacles"] == [[2.0, 1.0, 0.55], [1.0, 4.0, 0.55]]
+
+
+def test_by_default_the_agent_declares_its_neighbours_as_a_command_to_localize_0():
+    from rsal.interfaces.localize import ObstaclesCmd
+
+    class Fabric:
+        def __init__(self):
+            self.sent = []
+
+        def send(self, addr, msg):
+            self.sent.append((str(addr), msg))
+
+    class Hub:
+        def near(self, x, y, r, exclude=""):
+            return np.array([[2.0, 1.0], [1.0, 4.0]])
+
+    a = ThesisSwarmAgent("swarm0", robot="r0")
+    assert a.declare_by == "cmd"
+    a.localize, a._hub = _Latest((1.0, 1.0, 0.0)), Hub()
+    a.localize.fabric = Fabric()
+    a._obstacle_radius = 0.55
+    a.declare_neighbours()
+    assert not a.localize.calls  # no rpc
+    ((addr, msg),) = a.localize.fabric.sent
+    assert addr == "r0:localize:0"
+    assert msg == ObstaclesCmd(((2.0, 1.0, 0.55), (1.0, 4.0, 0.55)), a.obstacle_ttl)
 
 
 async def _run(ep: str, follow) -> dict:

@@ -9,6 +9,7 @@ import numpy as np
 
 from mrs_bridge.nav.conebeam import (
     CONE_RAYS,
+    CUTOFF_SIGMAS,
     ConeMap,
     cone_beam_jit,
     cone_expected_jit,
@@ -95,3 +96,28 @@ def test_compiled_kernel_matches_the_marching_reference():
     e = (z - jit) / 0.2
     expected = np.log(0.8 * np.exp(-0.5 * e * e) / (0.2 * math.sqrt(2.0 * math.pi)) + 0.2 / 5.0).sum(axis=1)
     np.testing.assert_allclose(a, expected, rtol=1e-9)
+
+
+def test_casting_stops_past_the_reading_without_changing_any_score():
+    # Short readings (a crowd's neighbours) with a wall 3-5 m away: the casts stop 1 m past the
+    # reading (CUTOFF_SIGMAS x 0.1 m), and the scores are those of the full casts to the wall.
+    cm = _wall_map()
+    rng = np.random.default_rng(5)
+    n, k = 30, 8
+    px, py, pth = rng.uniform(-0.5, 1.0, n), rng.uniform(-1.0, 5.0, n), rng.uniform(-0.3, 0.3, n)
+    bx, by = np.zeros(k), np.zeros(k)
+    bang = _cone(np.linspace(-0.6, 0.6, k), math.radians(15.0))
+    z = rng.uniform(0.3, 1.2, k)
+    full = np.array([
+        cone_expected_jit(px[i], py[i], pth[i], bx, by, bang, CONE_RAYS, cm.blocked, cm.clear, RES, *ORIGIN, 5.0)
+        for i in range(n)
+    ])  # fmt: skip
+    assert (full > z + CUTOFF_SIGMAS * 0.1).all()  # every cast is cut short
+    for z_rand in (0.2, 0.0):  # without a random term nothing is cut
+        got = cone_beam_jit(
+            px, py, pth, bx, by, bang, z, CONE_RAYS, cm.blocked, cm.clear, RES, *ORIGIN, 5.0, 0.8, z_rand, 0.1
+        )
+        e = (z - full) / 0.1
+        with np.errstate(divide="ignore"):
+            want = np.log(0.8 * np.exp(-0.5 * e * e) / (0.1 * math.sqrt(2.0 * math.pi)) + z_rand / 5.0).sum(axis=1)
+        np.testing.assert_allclose(got, want, rtol=1e-12)  # the same up to the order of operations

@@ -122,6 +122,22 @@ def test_localize_takes_known_obstacles_and_names_a_bad_one(vfh_port, fabric_fac
     assert e.value.code == ErrorCode.BAD_REQUEST and "ttl" in str(e.value), str(e.value)
 
 
+def test_localize_takes_known_obstacles_as_a_command(vfh_port, fabric_factory):
+    fab = fabric_factory(vfh_port)
+    robot, _ = nav_robot(fab)
+    loc = robot.localize
+
+    def held():  # describe's geometry, asked afresh (the proxy caches describe)
+        return loc.rpc("describe")["geometry"].get("obstacles")
+
+    assert held() == 0
+    loc.declare_obstacles([(0.0, 1.0, 0.4), (1.0, -1.0, 0.4)], ttl=30.0)
+    wait_until(lambda: held() == 2, 10, "the declared obstacles to be held")
+    fab.send(loc.addr, {"obstacles": [[0.0, 1.0, -0.4]]})  # malformed: dropped in the intake with a warning
+    loc.declare_obstacles([(2.0, 0.5, 0.4)], ttl=30.0)  # sent after it: replaces them once it arrives
+    wait_until(lambda: held() == 1, 10, "the next declaration to replace them")
+
+
 def test_rsal_goto_command(procs, vfh_port):
     endpoint = f"tcp/127.0.0.1:{vfh_port}"
     bad = procs(rsal_cmd("goto", "r0", "2.5", "0", "--connect", endpoint, "--wait", "30"))

@@ -20,8 +20,8 @@ the sonar ring's side gaps would miss them (echoes they explain are not walls to
 guard that re-seeds the localize device when its pose jumps away from where the robot's own
 odometry carried it (:meth:`ThesisPioneer.guard`). Its agent also declares the neighbours'
 broadcast positions to the localize device at the broadcast rate
-(:meth:`ThesisSwarmAgent.declare_neighbours`, ``rpc/set_obstacles``): AMCL leaves out the echoes
-they explain instead of scoring them against a map without robots
+(:meth:`ThesisSwarmAgent.declare_neighbours`, a ``localize`` ``cmd``, or ``rpc/set_obstacles``):
+AMCL leaves out the echoes they explain instead of scoring them against a map without robots
 (:mod:`mrs_bridge.nav.knownobstacles`).
 
 :class:`ThesisSwarmMonitor` is the :class:`~agents.scenarios.swarm.monitor.SwarmMonitor` with the
@@ -47,10 +47,12 @@ import numpy as np
 
 from agents.registry import agent_class
 from agents.services import Outcome, SendPosition
+from rsal import keys
 from rsal.behaviours import SECTOR_COUNT, BehaviourParams, ListSectors
 from rsal.clock import clock
 from rsal.data import normalize_angle
 from rsal.geometry import compose, relative
+from rsal.interfaces.localize import ObstaclesCmd
 from rsal.robot import Pioneer
 
 from .agents import SwarmAgent
@@ -65,6 +67,7 @@ __all__ = ["ThesisPioneer", "ThesisSwarmAgent", "ThesisSwarmMonitor", "params_fo
 log = logging.getLogger(__name__)
 
 LOCALIZE = "position2d:2"  # the amcl driver's pose in the map frame (mrs_bridge.drivers.amcl)
+DECLARE_TO = "localize:0"  # the amcl driver's localize device: its cmd takes the neighbours
 
 _nav_nodes: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # RobotHub -> its DeviceNode of nav devices
 _nav_lock = threading.Lock()
@@ -284,6 +287,9 @@ class ThesisSwarmAgent(SwarmAgent):
     #: m added to a neighbour's circumscribed radius for the errors of both robots' poses
     obstacle_margin = 0.15
     obstacle_ttl = 1.5  # s: the localize device forgets them after this (two missed broadcasts)
+    #: how the neighbours are declared: "cmd" (localize:0 ``cmd``, ObstaclesCmd, fire and forget) or
+    #: "rpc" (``rpc/set_obstacles``, a query and a reply each)
+    declare_by = "cmd"
     _obstacle_radius = 0.55
     _declare_failed = False
 
@@ -303,8 +309,13 @@ class ThesisSwarmAgent(SwarmAgent):
             return
         near = self._hub.near(m.pose[0], m.pose[1], self.obstacle_range, exclude=self.robot)
         discs = [[float(x), float(y), self._obstacle_radius] for x, y in near.tolist()]
-        fut = self.localize.rpc_async("set_obstacles", obstacles=discs, ttl=self.obstacle_ttl)
-        fut.add_done_callback(self._declared)
+        if self.declare_by == "rpc":
+            fut = self.localize.rpc_async("set_obstacles", obstacles=discs, ttl=self.obstacle_ttl)
+            fut.add_done_callback(self._declared)
+            return
+        # the command form: one put, no query to route and no reply to wait for (2 Hz x 100 robots)
+        cmd = ObstaclesCmd(tuple(tuple(d) for d in discs), self.obstacle_ttl)
+        self.localize.fabric.send(keys.parse_device(f"{self.robot}:{DECLARE_TO}"), cmd)
 
     def _declared(self, fut) -> None:  # a zenoh or executor thread: only logs
         e = fut.exception()
