@@ -50,7 +50,7 @@ from rsal.clock import clock
 from rsal.data import Board, BoardObject, Position
 from rsal.robot import Robot
 
-from .cells import cell_of, cells_near
+from .cells import cell_of, cells_near, cells_near_many
 from .runtime import Agent, AgentHost
 from .services import CellSubscription, Message, SendPosition, Subscription
 
@@ -188,20 +188,33 @@ class RobotHub:
         cells are declared before the old ones go); returns the union."""
         for fn in self.before_rewatch:
             fn()
-        by_cell: dict[str, list[Agent]] = {}
-        union: set[str] = set()
         reach = self.radius + self.margin
+        moved, xy = [], []
         for aid, a in self.agents.items():
             robot = self.robots.get(getattr(a, "robot", ""))
-            xy = robot_xy(robot) if robot is not None else None
-            if xy is None:
+            p = robot_xy(robot) if robot is not None else None
+            if p is not None:
+                moved.append((aid, a))
+                xy.append(p)
+        rows, cell, names = cells_near_many(np.array(xy, dtype=float).reshape(-1, 2), reach, self.cell_size)
+        mine: list[list[str]] = [[] for _ in moved]
+        by_cell: dict[str, list[Agent]] = {}
+        bounds = np.searchsorted(cell, np.arange(len(names) + 1)).tolist()  # each cell's pairs
+        for name, lo, hi in zip(names, bounds[:-1], bounds[1:], strict=True):  # one pass per cell, not per pair
+            idx = rows[lo:hi].tolist()
+            by_cell[name] = [moved[i][1] for i in idx]
+            for i in idx:
+                mine[i].append(name)
+        for (aid, _a), cells in zip(moved, mine, strict=True):
+            self.agent_cells[aid] = frozenset(cells)
+        union: set[str] = set(names)
+        placed = {aid for aid, _a in moved}
+        for aid, a in self.agents.items():  # no pose (yet): the cells it had
+            if aid not in placed:
                 cells = self.agent_cells.get(aid, frozenset())
-            else:
-                cells = frozenset(cells_near(xy[0], xy[1], reach, self.cell_size))
-                self.agent_cells[aid] = cells
-            for c in cells:
-                by_cell.setdefault(c, []).append(a)
-            union |= cells
+                for c in cells:
+                    by_cell.setdefault(c, []).append(a)
+                union |= cells
         self._by_cell = by_cell
         if self._cells is not None:
             self._cells.watch(union)

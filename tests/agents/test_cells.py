@@ -1,7 +1,8 @@
 """Neighbourhood-scoped broadcasts (agents.cells, Services.subscribe_cells).
 
 (a) The cell arithmetic: every point within the radius lies in one of :func:`cells_near`'s cells
-(checked against brute force on random points), and no cell lies wholly outside the radius.
+(checked against brute force on random points), and no cell lies wholly outside the radius;
+:func:`cells_near_many` gives every row the same cells as :func:`cells_near`, on cell borders too.
 (b) Over real Zenoh sessions: a receiver agent drives across several cell borders while senders
 on another host (another session) publish into their cells every tick. Every message whose sender
 was within the radius of the receiver's position at the moment it was sent arrives; messages of
@@ -18,7 +19,7 @@ import time
 import numpy as np
 import pytest
 
-from agents.cells import cell_of, cells_near, margin
+from agents.cells import cell_of, cells_near, cells_near_many, margin
 from agents.runtime import Agent, AgentHost
 from rsal.transport import TransportArgs, open_session
 from tests.conftest import LoopThread, free_port, wait_until
@@ -38,6 +39,26 @@ def test_cells_near_covers_the_disc_and_no_more():
             ix, iy = (int(v) for v in c[1:].split("_"))
             nx, ny = min(max(x, ix * size), (ix + 1) * size), min(max(y, iy * size), (iy + 1) * size)
             assert math.hypot(nx - x, ny - y) <= r + 1e-9
+
+
+def test_cells_near_many_gives_each_row_the_cells_of_cells_near():
+    rng = np.random.default_rng(11)
+    for r, size in [(5.5, 5.0), (2.5, 2.0), (1.0, 3.0), (5.0, 5.0), (0.0, 1.0), (0.3, 0.25)]:
+        xy = np.concatenate([
+            rng.uniform(-40, 40, (400, 2)),
+            rng.integers(-8, 8, (100, 2)) * size,  # on cell corners
+            rng.integers(-8, 8, (100, 2)) * size + (r, -r),  # the radius reaching a border exactly
+        ])
+        rows, cell, names = cells_near_many(xy, r, size)
+        assert len(set(names)) == len(names) and (np.diff(cell) >= 0).all()  # grouped by cell
+        got: list[set[str]] = [set() for _ in xy]
+        for i, c in zip(rows.tolist(), cell.tolist(), strict=True):
+            assert names[c] not in got[i]
+            got[i].add(names[c])
+        for (x, y), cells in zip(xy.tolist(), got, strict=True):
+            assert cells == cells_near(x, y, r, size), (x, y, r, size)
+    rows, cell, names = cells_near_many(np.zeros((0, 2)), 5.0, 5.0)
+    assert len(rows) == len(cell) == len(names) == 0
 
 
 class Receiver(Agent):
