@@ -44,11 +44,13 @@ def test_cells_near_covers_the_disc_and_no_more():
 def test_cells_near_many_gives_each_row_the_cells_of_cells_near():
     rng = np.random.default_rng(11)
     for r, size in [(5.5, 5.0), (2.5, 2.0), (1.0, 3.0), (5.0, 5.0), (0.0, 1.0), (0.3, 0.25)]:
-        xy = np.concatenate([
-            rng.uniform(-40, 40, (400, 2)),
-            rng.integers(-8, 8, (100, 2)) * size,  # on cell corners
-            rng.integers(-8, 8, (100, 2)) * size + (r, -r),  # the radius reaching a border exactly
-        ])
+        xy = np.concatenate(
+            [
+                rng.uniform(-40, 40, (400, 2)),
+                rng.integers(-8, 8, (100, 2)) * size,  # on cell corners
+                rng.integers(-8, 8, (100, 2)) * size + (r, -r),  # the radius reaching a border exactly
+            ]
+        )
         rows, cell, names = cells_near_many(xy, r, size)
         assert len(set(names)) == len(names) and (np.diff(cell) >= 0).all()  # grouped by cell
         got: list[set[str]] = [set() for _ in xy]

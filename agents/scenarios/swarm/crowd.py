@@ -24,7 +24,6 @@ from __future__ import annotations
 import math
 import threading
 import time
-from operator import attrgetter
 
 import numpy as np
 
@@ -32,7 +31,7 @@ from rsal.data import Position
 from rsal.interfaces.crowd import Crowd, CrowdLayout
 
 from .behaviour import Disperse
-from .vector import VectorState, _Pose, fuse_rings
+from .vector import VectorState, _Pose, fuse_rings, read_state
 
 __all__ = ["CrowdLink", "CrowdRobot", "CrowdStep", "link_of"]
 
@@ -168,16 +167,8 @@ class CrowdStep:
         rows = np.fromiter((r.row for r in mine), dtype=np.int64, count=len(mine))
         pose = m.pose[rows].astype(float)
         alive = ~np.isnan(pose[:, 0])
-        st = VectorState(len(mine))
         behaviours = [r.behaviour for r in mine]
-        key = tuple(map(id, map(attrgetter("p"), behaviours)))  # parameters are read when the rows change
-        if self._params is None or self._params[0] != key:
-            st.read_params(behaviours)
-            self._params = (key, st)
-        else:
-            for name in VectorState._PARAMS:
-                setattr(st, name, getattr(self._params[1], name))
-        st.read(behaviours)
+        st, self._params = read_state(behaviours, self._params)
         st.yaw = pose[:, 2].copy()
         sectors = np.full((len(mine), 36), np.inf)
         ranger_of = np.asarray(lay.ranger_of)[rows]

@@ -34,7 +34,7 @@ from rsal.geometry import wrap
 
 from .behaviour import Disperse, SwarmPioneer
 
-__all__ = ["STATES", "HostStep", "VectorState", "fuse_rings", "sector_span"]
+__all__ = ["STATES", "HostStep", "VectorState", "fuse_rings", "read_state", "sector_span"]
 
 #: the layer names, in the order of :attr:`VectorState.state`'s codes
 STATES = ("idle", "command", "escape", "avoid", "wallfollow", "disperse")
@@ -243,6 +243,21 @@ class VectorState:
         return out
 
 
+def read_state(behaviours: list, cached: tuple | None) -> tuple[VectorState, tuple]:
+    """A :class:`VectorState` of ``behaviours`` (their state read now) and the parameter cache to
+    keep: the parameters are read again only when the rows' parameter objects change."""
+    st = VectorState(len(behaviours))
+    key = tuple(map(id, map(attrgetter("p"), behaviours)))
+    if cached is None or cached[0] != key:
+        st.read_params(behaviours)
+        cached = (key, st)
+    else:
+        for name in VectorState._PARAMS:
+            setattr(st, name, getattr(cached[1], name))
+    st.read(behaviours)
+    return st, cached
+
+
 class HostStep:
     """``hub.batch`` of an agent host's :class:`agents.hub.RobotHub`: one vectorised behaviour step
     (:func:`fuse_rings`, :meth:`VectorState.step`) for every plain sonar :class:`.behaviour.SwarmPioneer`
@@ -307,15 +322,7 @@ class HostStep:
             rm[zero] = ranges[zero].max(axis=1)
         sectors = fuse_rings(np.stack(beams), ranges, rm)
         behaviours = [r.behaviour for r in rows]
-        st = VectorState(n)
-        key = tuple(map(id, map(attrgetter("p"), behaviours)))  # parameters are read when the rows change
-        if self._params is None or self._params[0] != key:
-            st.read_params(behaviours)
-            self._params = (key, st)
-        else:
-            for name in VectorState._PARAMS:
-                setattr(st, name, getattr(self._params[1], name))
-        st.read(behaviours)
+        st, self._params = read_state(behaviours, self._params)
         st.yaw = pose[:, 2].copy()
         out = st.step(sectors, self.now(), np.array(stall, dtype=bool))
         changed = set(st.write(behaviours))
