@@ -28,6 +28,8 @@ import math
 
 import numpy as np
 
+from rsal.interfaces.localize import first_bad_disc
+
 __all__ = ["explained_by_obstacles", "parse_obstacles"]
 
 
@@ -78,14 +80,9 @@ def parse_obstacles(value, where: str = "obstacles") -> np.ndarray:
     ``where`` and the offending entry when a disc is not three finite numbers with a radius > 0."""
     if not isinstance(value, list | tuple):
         raise ValueError(f"{where} must be a list of [x, y, radius] discs (m, map frame), got {type(value).__name__}")
-    out = np.zeros((len(value), 3))
-    for i, v in enumerate(value):
-        if (
-            not isinstance(v, list | tuple)
-            or len(v) != 3
-            or not all(isinstance(e, int | float) and not isinstance(e, bool) and math.isfinite(e) for e in v)
-            or not v[2] > 0
-        ):
-            raise ValueError(f"{where}[{i}] = {v!r} must be [x, y, radius]: three finite numbers, radius > 0 (m)")
-        out[i] = v
-    return out
+    bad = first_bad_disc(value)
+    if bad is not None:
+        raise ValueError(
+            f"{where}[{bad}] = {value[bad]!r} must be [x, y, radius]: three finite numbers, radius > 0 (m)"
+        )
+    return np.array(value, dtype=float).reshape(-1, 3)

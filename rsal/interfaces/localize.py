@@ -17,7 +17,7 @@ from ..data import Position
 from ..msgs import MessageError, _Msg, get_float, get_int, get_list, get_vec
 from .base import Device, Interface
 
-__all__ = ["Hypothesis", "LocalizeData", "ObstaclesCmd", "Localize", "INTERFACE"]
+__all__ = ["Hypothesis", "LocalizeData", "ObstaclesCmd", "first_bad_disc", "is_disc", "Localize", "INTERFACE"]
 
 
 def _cov9(m: dict, name: str) -> tuple[float, ...]:
@@ -68,6 +68,21 @@ class LocalizeData(_Msg):
         )
 
 
+def is_disc(v) -> bool:
+    """Whether ``v`` is a known obstacle's ``[x, y, radius]``: three finite numbers, radius > 0 (m)."""
+    return (
+        isinstance(v, list | tuple)
+        and len(v) == 3
+        and all(isinstance(e, int | float) and not isinstance(e, bool) and math.isfinite(e) for e in v)
+        and v[2] > 0
+    )
+
+
+def first_bad_disc(discs) -> int | None:
+    """The index of the first entry of ``discs`` that is not :func:`is_disc`, or None."""
+    return next((i for i, v in enumerate(discs) if not is_disc(v)), None)
+
+
 @dataclass(frozen=True)
 class ObstaclesCmd(_Msg):
     """localize ``cmd``: known moving obstacles, ``obstacles`` ``((x, y, radius), ...)`` (m, map
@@ -82,20 +97,14 @@ class ObstaclesCmd(_Msg):
         raw = m.get("obstacles")
         if not isinstance(raw, list | tuple):
             raise MessageError("field 'obstacles' must be a list of [x, y, radius] (m, map frame)")
-        discs = []
-        for i, v in enumerate(raw):
-            if (
-                not isinstance(v, list | tuple)
-                or len(v) != 3
-                or not all(isinstance(e, int | float) and not isinstance(e, bool) and math.isfinite(e) for e in v)
-                or not v[2] > 0
-            ):
-                raise MessageError(f"field 'obstacles'[{i}] = {v!r} must be [x, y, radius] with radius > 0 (m)")
-            discs.append((float(v[0]), float(v[1]), float(v[2])))
+        bad = first_bad_disc(raw)
+        if bad is not None:
+            raise MessageError(f"field 'obstacles'[{bad}] = {raw[bad]!r} must be [x, y, radius] with radius > 0 (m)")
+        discs = tuple((float(v[0]), float(v[1]), float(v[2])) for v in raw)
         ttl = get_float(m, "ttl", 1.5)
         if not ttl > 0:
             raise MessageError(f"field 'ttl' {ttl!r} must be a positive number of s")
-        return cls(tuple(discs), ttl)
+        return cls(discs, ttl)
 
 
 class Localize(Device):
