@@ -384,15 +384,17 @@ def test_a_forged_outcome_from_a_stranger_changes_nothing(procs, tmp_path):
 
 
 def test_nav_servers_run_the_stacks_beside_the_simulator_and_are_stopped(procs, tmp_path):
-    # simulator.nav_servers: 1 -> rsal sim .. --nav-servers 1 and one rsal sim .. --nav-part 0/1 server
+    # simulator.nav_servers: 1 -> rsal sim .. --nav-servers 1 and one rsal sim .. --nav-part 0/1 server;
+    # the run ends (ok) once r0's planner, served by that server, is on the fabric: the reporter waits
+    # for its token
     path = scenario(
         tmp_path,
         f"""
         nav:
           simulator: {{world: {MAPS / "testroom.world"}, nav: vfh, nav_servers: 1}}
           agents:
-            - {{type: rep, id: rep, args: {{subjects: [x], every: 1.0}}}}
-          end: {{duration: 25, timeout: 120}}
+            - {{type: rep, id: rep, args: {{event: ready, subjects: [r0], after: "r0:planner:0"}}}}
+          end: {{event: ready, count: 1, timeout: 120}}
         """,
     )
     p = procs(rsal_cmd("run", str(path)))
