@@ -5,6 +5,8 @@ nearest free collector, re-offering failed blobs) is tested on an agent host who
 are recorded in memory. The integration tests start a real ``rsal sim maps/collect.world`` process
 with the navigation stack for the collectors and run the agents on an :class:`AgentHost` in the test
 process; the simulation's ground truth (``simulation`` rpc ``get_pose``) says where the blobs end up.
+The two tests of one collector share one simulation (class-scoped, each with its own robot); the whole
+scenario gets a fresh one.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from contextlib import contextmanager
 
 import pytest
 
@@ -22,7 +25,7 @@ from rsal.client import Fabric
 from rsal.keys import parse_device
 from rsal.msgs import RpcError
 from rsal.transport import TransportArgs
-from tests.conftest import MAPS, SPEEDUP, LoopThread, free_port, rsal_cmd, wait_until
+from tests.conftest import MAPS, SPEEDUP, LoopThread, Proc, free_port, rsal_cmd, wait_until
 
 WORLD = MAPS / "collect.world"
 BLOBS = ("blob0", "blob1", "blob2")
@@ -128,13 +131,14 @@ def test_agents_reject_bad_arguments():
 # ============================================================================ with the simulator
 
 
-@pytest.fixture
-def sim(procs, sim_time):
+@contextmanager
+def _running_sim(start, follow):
     """``rsal sim maps/collect.world`` with the navigation stack for e1, c1 and c2 (the explorer
-    localizes with AMCL like the collectors), an agent host and a simulation proxy on its endpoint."""
+    localizes with AMCL like the collectors), started by ``start(argv) -> Proc``, an agent host and a
+    simulation proxy on its endpoint; ``follow(session)`` makes this process follow its clock."""
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
-    p = procs(
+    p = start(
         rsal_cmd("sim", str(WORLD), "--listen", ep, "--nav", "vfh", "--nav-robots", "e1,c1,c2", "--speedup", SPEEDUP)
     )
     lt = LoopThread(120.0)
@@ -156,7 +160,7 @@ def sim(procs, sim_time):
                 return False
 
         wait_until(answers, 90, f"the simulation to answer rpcs\n{p.output()}", interval=0.5)
-        sim_time(host.session)
+        follow(host.session)
         yield {"host": host, "loop": lt, "sim": simdev, "proc": p}
     finally:
         if host is not None:
@@ -166,39 +170,88 @@ def sim(procs, sim_time):
         lt.close()
 
 
+@pytest.fixture
+def sim(procs, sim_time):
+    """A fresh simulation for one test (the whole scenario needs every robot and blob where the world
+    file puts them)."""
+    with _running_sim(procs, sim_time) as s:
+        yield s
+
+
+@pytest.fixture(scope="class")
+def lab():
+    """One simulation shared by the tests of one collector (:class:`TestOneCollector`): each uses its
+    own collector and blob, and kills its agent at its end (the reset), so none depends on another's
+    order. Started and stopped here by PID, on the simulation's clock until the class ends."""
+    from rsal.clock import WallClock, set_clock, use_sim_time
+
+    started: list[Proc] = []
+    clocks = []
+
+    def start(argv) -> Proc:
+        started.append(Proc(argv))
+        return started[-1]
+
+    def follow(session) -> None:
+        clocks.append(use_sim_time(session, "sim"))
+        assert clocks[-1].wait_started(60.0), "no time from the simulation of node 'sim'"
+
+    try:
+        with _running_sim(start, follow) as s:
+            yield s
+    finally:
+        set_clock(WallClock())
+        for c in clocks:
+            c.close()
+        for p in started:
+            p.close()
+
+
 def _where(simdev, name: str):
     p = simdev.get_pose(name)
     return p.x, p.y
 
 
-@pytest.mark.timeout(300)
-def test_collector_fetches_a_blob_home(sim):
-    """One collector, one blob put 2 m from it: driven to, gripped, brought home and put down there."""
-    simdev, host, lt = sim["sim"], sim["host"], sim["loop"]
-    simdev.set_pose("blob1", _pose(-21.5, 7.6))  # in the laboratory, 2 m ahead of c1
-    c = CollectAgent("collector1", robot="c1", startup_timeout=60)
-    lt.run(host.start(c), timeout=90)
-    home = c.home
-    assert math.hypot(home.x + 21.5, home.y - 9.6) < 0.3  # its start pose, localized
-    t0 = time.monotonic()
-    res = lt.run(c.fetch("blob1", -21.5, 7.6), timeout=240)
-    took = time.monotonic() - t0
-    assert res.ok, res.reason
-    bx, by = _where(simdev, "blob1")
-    assert math.hypot(bx - home.x, by - home.y) < 1.0, (bx, by, home)
-    assert math.hypot(bx - res.x, by - res.y) < 0.3  # the reported drop spot is where it lies
-    assert not c.pioneer.gripper.carrying
-    print(f"fetched one blob home in {took:.1f} s")
+class TestOneCollector:
+    """One collector at a time on a simulation the class shares (fixture ``lab``): collector1 (c1)
+    with blob1, collector2 (c2) with no blob at all; neither touches the other's robot or blob, and
+    each kills its agent at its end."""
 
+    @pytest.mark.timeout(300)
+    def test_collector_fetches_a_blob_home(self, lab):
+        """One collector, one blob put 2 m from it: driven to, gripped, brought home and put down there."""
+        simdev, host, lt = lab["sim"], lab["host"], lab["loop"]
+        simdev.set_pose("blob1", _pose(-21.5, 7.6))  # in the laboratory, 2 m ahead of c1
+        c = CollectAgent("collector1", robot="c1", startup_timeout=60)
+        lt.run(host.start(c), timeout=90)
+        try:
+            home = c.home
+            assert math.hypot(home.x + 21.5, home.y - 9.6) < 0.3  # its start pose, localized
+            t0 = time.monotonic()
+            res = lt.run(c.fetch("blob1", -21.5, 7.6), timeout=240)
+            took = time.monotonic() - t0
+            assert res.ok, res.reason
+            bx, by = _where(simdev, "blob1")
+            assert math.hypot(bx - home.x, by - home.y) < 1.0, (bx, by, home)
+            assert math.hypot(bx - res.x, by - res.y) < 0.3  # the reported drop spot is where it lies
+            assert not c.pioneer.gripper.carrying
+            print(f"fetched one blob home in {took:.1f} s")
+        finally:
+            lt.run(host.kill(c))
 
-@pytest.mark.timeout(300)
-def test_collector_reports_a_missing_blob_as_failure(sim):
-    host, lt = sim["host"], sim["loop"]
-    c = CollectAgent("collector1", robot="c1", startup_timeout=60)
-    lt.run(host.start(c), timeout=90)
-    res = lt.run(c.fetch("ghost", -20.0, 8.0), timeout=240)  # nothing there
-    assert not res.ok and "not found" in res.reason
-    assert c.busy is None and c.failed == ["ghost"]
+    @pytest.mark.timeout(300)
+    def test_collector_reports_a_missing_blob_as_failure(self, lab):
+        host, lt = lab["host"], lab["loop"]
+        c = CollectAgent("collector2", robot="c2", startup_timeout=60)
+        lt.run(host.start(c), timeout=90)
+        try:
+            # nothing there: 1.7 m ahead of c2, in the laboratory's free east side (blob1, the only
+            # blob moved by this class, lies by c1 at the west end)
+            res = lt.run(c.fetch("ghost", -15.0, 6.0), timeout=240)
+            assert not res.ok and "not found" in res.reason
+            assert c.busy is None and c.failed == ["ghost"]
+        finally:
+            lt.run(host.kill(c))
 
 
 def _pose(x, y):

@@ -227,27 +227,28 @@ def test_sigint_stops_every_child_and_exits_130(procs, tmp_path):
 
 
 def test_bad_files_and_arguments_exit_2_with_one_line(procs, tmp_path):
+    # four independent refusals, started together (each is a process start-up)
     bad = scenario(tmp_path, "x:\n  agents: [{type: rep, robto: r0}]\n  end: {duration: 5}\n", "bad.yaml")
-    p = procs(rsal_cmd("run", str(bad)))
-    out = finished(p, 60, "rsal run to reject the file").strip()
-    assert p.p.returncode == 2 and out.splitlines() == [out]
-    assert out == f"rsal run: {bad}: applications.x.agents[0].robto: unknown key; did you mean 'robot'?"
     good = scenario(tmp_path, "one:\n  description: first\n  agents: [{type: rep}]\n  end: {duration: 5}\n")
-    p = procs(rsal_cmd("run", str(good), "--app", "two"))
-    out = finished(p, 60, "rsal run to reject the application")
-    assert p.p.returncode == 2
-    assert "  one  first" in out and f"rsal run: {good}: no application 'two'; use one of one" in out
     two = scenario(
         tmp_path,
         "a:\n  agents: [{type: rep}]\n  end: {duration: 5}\nb:\n  agents: [{type: rep}]\n  end: {duration: 5}\n",
         "two.yaml",
     )
-    p = procs(rsal_cmd("run", str(two)))
-    out = finished(p, 60, "rsal run to ask for an application")
-    assert p.p.returncode == 2 and f"rsal run: {two}: choose an application with --app (a, b)" in out
-    p = procs(rsal_cmd("run", str(good), "--set", "nonsense"))
-    out = finished(p, 60, "rsal run to reject --set").strip()
-    assert p.p.returncode == 2 and out.startswith("rsal run: --set 'nonsense': must be KEY=VALUE")
+    p_bad = procs(rsal_cmd("run", str(bad)))
+    p_app = procs(rsal_cmd("run", str(good), "--app", "two"))
+    p_two = procs(rsal_cmd("run", str(two)))
+    p_set = procs(rsal_cmd("run", str(good), "--set", "nonsense"))
+    out = finished(p_bad, 60, "rsal run to reject the file").strip()
+    assert p_bad.p.returncode == 2 and out.splitlines() == [out]
+    assert out == f"rsal run: {bad}: applications.x.agents[0].robto: unknown key; did you mean 'robot'?"
+    out = finished(p_app, 60, "rsal run to reject the application")
+    assert p_app.p.returncode == 2
+    assert "  one  first" in out and f"rsal run: {good}: no application 'two'; use one of one" in out
+    out = finished(p_two, 60, "rsal run to ask for an application")
+    assert p_two.p.returncode == 2 and f"rsal run: {two}: choose an application with --app (a, b)" in out
+    out = finished(p_set, 60, "rsal run to reject --set").strip()
+    assert p_set.p.returncode == 2 and out.startswith("rsal run: --set 'nonsense': must be KEY=VALUE")
 
 
 def test_rsal_agent_passes_arg_values_to_any_registered_class(procs):
@@ -384,15 +385,17 @@ def test_a_forged_outcome_from_a_stranger_changes_nothing(procs, tmp_path):
 
 
 def test_nav_servers_run_the_stacks_beside_the_simulator_and_are_stopped(procs, tmp_path):
-    # simulator.nav_servers: 1 -> rsal sim .. --nav-servers 1 and one rsal sim .. --nav-part 0/1 server
+    # simulator.nav_servers: 1 -> rsal sim .. --nav-servers 1 and one rsal sim .. --nav-part 0/1 server;
+    # the run ends (ok) once r0's planner, served by that server, is on the fabric: the reporter waits
+    # for its token
     path = scenario(
         tmp_path,
         f"""
         nav:
           simulator: {{world: {MAPS / "testroom.world"}, nav: vfh, nav_servers: 1}}
           agents:
-            - {{type: rep, id: rep, args: {{subjects: [x], every: 1.0}}}}
-          end: {{duration: 25, timeout: 120}}
+            - {{type: rep, id: rep, args: {{event: ready, subjects: [r0], after: "r0:planner:0"}}}}
+          end: {{event: ready, count: 1, timeout: 120}}
         """,
     )
     p = procs(rsal_cmd("run", str(path)))

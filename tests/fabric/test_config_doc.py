@@ -6,7 +6,8 @@ configuration meant to live at PATH in the repository, so its relative paths res
 ``rsal serve`` prints for it). Working blocks are parsed with :mod:`mrs_bridge.config` and started
 by a :class:`~mrs_bridge.server.DeviceServer` over an in-memory fake session, which creates every
 driver (loading maps and worlds) without a network. Broken blocks run through the real
-``rsal serve`` on a free loopback port; its stderr must be exactly the documented line.
+``rsal serve`` on a free loopback port, all at once (fixture ``refusals``); its stderr must be exactly
+the documented line.
 """
 
 from __future__ import annotations
@@ -15,7 +16,6 @@ import re
 import subprocess
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import pytest
 
@@ -116,19 +116,42 @@ def test_rsal_sim_runs_the_documented_config():
     assert shape(doc) == shape(gen)
 
 
+@pytest.fixture(scope="module")
+def refusals(tmp_path_factory) -> dict[str, subprocess.CompletedProcess]:
+    """Every bad example through the real ``rsal serve`` at once, each in a folder of its own on a
+    free loopback port (independent refusals: started together, one process start-up's wait instead
+    of one per example); the tests below read each one's result. Stopped by PID if still running."""
+    started: dict[str, subprocess.Popen] = {}
+    try:
+        for ex in BAD:
+            d = tmp_path_factory.mktemp("bad-config")
+            f = d / ex.path
+            f.parent.mkdir(parents=True, exist_ok=True)
+            f.write_text(ex.toml, encoding="utf-8")
+            started[ex.id] = subprocess.Popen(
+                rsal_cmd("serve", ex.path, "--listen", f"tcp/127.0.0.1:{free_port()}"),
+                cwd=d,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+                start_new_session=True,
+            )
+        deadline = time.monotonic() + 120
+        done = {}
+        for name, p in started.items():
+            out, err = p.communicate(timeout=max(1.0, deadline - time.monotonic()))
+            done[name] = subprocess.CompletedProcess(p.args, p.returncode, out, err)
+        return done
+    finally:
+        for p in started.values():
+            if p.poll() is None:
+                p.kill()
+                p.wait(5)
+
+
 @pytest.mark.parametrize("ex", BAD, ids=lambda e: e.id)
-def test_bad_config_fails_with_the_documented_line(ex, tmp_path: Path):
-    f = tmp_path / ex.path
-    f.parent.mkdir(parents=True, exist_ok=True)
-    f.write_text(ex.toml, encoding="utf-8")
-    out = subprocess.run(
-        rsal_cmd("serve", ex.path, "--listen", f"tcp/127.0.0.1:{free_port()}"),
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        start_new_session=True,
-    )
+def test_bad_config_fails_with_the_documented_line(ex, refusals):
+    out = refusals[ex.id]
     assert out.returncode == 1, out.stdout + out.stderr
     assert out.stderr.strip() == ex.error
     assert "[serve]" not in out.stdout  # it never started serving

@@ -20,7 +20,10 @@ line. Skipped with the reason when openssl is missing.
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
 import threading
+import time
 
 import pytest
 import zenoh
@@ -262,29 +265,51 @@ def test_adding_a_robot_touches_no_other_member(tmp_path):
     assert (f.dir / "router.json5").read_text() == rules
 
 
-@pytest.mark.parametrize(
-    "argv, says",
-    [
-        (["add-robot", "r/1"], "rsal secure: identity 'r/1' must start with a letter or digit"),
-        (["add-robot", "r1", "--nodes", "r1,*"], "rsal secure: node '*' must start with a letter or digit"),
-        (["add-agents", "hostA", "--agents", "", "--services", "s"], "rsal secure: agent host 'hostA': name its"),
-        (["revoke", "nobody"], "rsal secure: no identity 'nobody'"),
-        (["add-robot", "r1", "--dir", "missing"], "no fleet folder here (make one with: rsal secure init --dir"),
-    ],
-)
-def test_user_errors_are_one_line(tmp_path, argv, says):
-    import subprocess
-    import sys
+USER_ERRORS = [
+    (["add-robot", "r/1"], "rsal secure: identity 'r/1' must start with a letter or digit"),
+    (["add-robot", "r1", "--nodes", "r1,*"], "rsal secure: node '*' must start with a letter or digit"),
+    (["add-agents", "hostA", "--agents", "", "--services", "s"], "rsal secure: agent host 'hostA': name its"),
+    (["revoke", "nobody"], "rsal secure: no identity 'nobody'"),
+    (["add-robot", "r1", "--dir", "missing"], "no fleet folder here (make one with: rsal secure init --dir"),
+]
 
-    Fleet(tmp_path / "fleet").init("127.0.0.1", 7448)
-    folder = [] if "--dir" in argv else ["--dir", str(tmp_path / "fleet")]
-    r = subprocess.run(
-        [sys.executable, "-m", "rsal.cli", "secure", *argv, *folder],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=tmp_path,
-    )
+
+@pytest.fixture(scope="module")
+def user_errors(tmp_path_factory) -> dict[tuple, subprocess.CompletedProcess]:
+    """Each of ``USER_ERRORS``' command lines run by ``rsal secure`` in a folder of its own with a
+    fresh fleet, all at once (independent refusals, started together); stopped by PID if still
+    running. Keyed by the command line (``tuple(argv)``)."""
+    started: dict[tuple, subprocess.Popen] = {}
+    try:
+        for argv, _ in USER_ERRORS:
+            d = tmp_path_factory.mktemp("secure")
+            Fleet(d / "fleet").init("127.0.0.1", 7448)
+            folder = [] if "--dir" in argv else ["--dir", str(d / "fleet")]
+            started[tuple(argv)] = subprocess.Popen(
+                [sys.executable, "-m", "rsal.cli", "secure", *argv, *folder],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+                cwd=d,
+                start_new_session=True,
+            )
+        deadline = time.monotonic() + 120
+        done = {}
+        for key, p in started.items():
+            out, err = p.communicate(timeout=max(1.0, deadline - time.monotonic()))
+            done[key] = subprocess.CompletedProcess(p.args, p.returncode, out, err)
+        return done
+    finally:
+        for p in started.values():
+            if p.poll() is None:
+                p.kill()
+                p.wait(5)
+
+
+@pytest.mark.parametrize("argv, says", USER_ERRORS)
+def test_user_errors_are_one_line(user_errors, argv, says):
+    r = user_errors[tuple(argv)]
+    assert r.args[4 : 4 + len(argv)] == argv
     assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert says in r.stderr, r.stderr
 

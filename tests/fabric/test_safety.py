@@ -1,6 +1,8 @@
 """Multi-process integration: a robot stops when its controller dies (command timeout), and a latched
 emergency stop overrides every commander. Verdicts come from the simulator's ground truth
-(``sim:simulation:0`` ``rpc/get_pose``), sampled on the wall clock.
+(``sim:simulation:0`` ``rpc/get_pose``), sampled on the wall clock. The tests of r0's base alone
+share one simulator (fixture ``sim``: r0 reset to a fresh simulator's state before each); the tests of
+several commanders, or of another world, start their own.
 """
 
 from __future__ import annotations
@@ -13,8 +15,11 @@ import time
 
 import pytest
 
+from rsal.client import Fabric
+from rsal.data import Position
 from rsal.msgs import ErrorCode, RpcError
-from tests.conftest import MAPS, rsal_cmd, wait_until
+from rsal.transport import TransportArgs
+from tests.conftest import MAPS, Proc, free_port, rsal_cmd, wait_until
 
 WORLD = str(MAPS / "testroom.world")
 CMD_TIMEOUT = 0.5  # the bases' default
@@ -65,13 +70,42 @@ def stop_time(fab, name: str, t0: float, horizon: float = 2.0, period: float = 0
     return last_change - t0
 
 
+@pytest.fixture(scope="module")
+def sim_server():
+    """One ``rsal sim testroom.world`` for the module's tests of r0's base (started and stopped here
+    by PID): its port, a client fabric and r0's true start pose."""
+    port = free_port()
+    proc = Proc(rsal_cmd("sim", WORLD, "--listen", f"tcp/127.0.0.1:{port}"))
+    fab = None
+    try:
+        fab = Fabric.connect(TransportArgs(connect=[f"tcp/127.0.0.1:{port}"]))
+        fab.node("r0:*:*").wait_for("r0:position2d:0", timeout=30)
+        fab.node("sim:*:*").wait_for("sim:simulation:0", timeout=30)
+        yield port, fab, true_pose(fab, "r0")
+    finally:
+        if fab is not None:
+            fab.close()
+        proc.close()
+
+
 @pytest.fixture
-def sim(procs, port, fabric_factory):
-    procs(rsal_cmd("sim", WORLD, "--listen", f"tcp/127.0.0.1:{port}"))
-    fab = fabric_factory(port)
-    fab.node("r0:*:*").wait_for("r0:position2d:0", timeout=30)
-    fab.node("sim:*:*").wait_for("sim:simulation:0", timeout=30)
+def sim(sim_server):
+    """The shared simulator with r0 as a fresh one has it (the reset): emergency stop released,
+    motors on, stopped, at its start pose and standing still (ground truth)."""
+    _, fab, (x, y, a) = sim_server
+    pos = fab.device("r0:position2d:0")
+    pos.release_estop()
+    assert pos.set_motor_power(True) is True
+    pos.stop()
+    fab.device("sim:simulation:0").set_pose("r0", Position(x, y, a))
+    wait_until(lambda: not moving(fab, ["r0"])["r0"], 5, "r0 to stand still after the reset")
+    assert math.hypot(true_pose(fab, "r0")[0] - x, true_pose(fab, "r0")[1] - y) < 0.01
     return fab
+
+
+@pytest.fixture
+def sim_port(sim_server) -> int:
+    return sim_server[0]
 
 
 def start_driver(procs, port, robots: str = "r0", v: float = 0.3):
@@ -80,9 +114,9 @@ def start_driver(procs, port, robots: str = "r0", v: float = 0.3):
     return p
 
 
-def test_a_robot_stops_when_its_commanding_process_is_killed(sim, procs, port):
+def test_a_robot_stops_when_its_commanding_process_is_killed(sim, procs, sim_port):
     fab = sim
-    driver = start_driver(procs, port)
+    driver = start_driver(procs, sim_port)
     wait_until(lambda: moving(fab, ["r0"])["r0"], 10, "r0 to move (ground truth)")
     pos = fab.device("r0:position2d:0")
     assert not pos.wait_for_data(5).timed_out
