@@ -58,6 +58,8 @@ from rsal.robot import Pioneer
 from .agents import SwarmAgent
 from .behaviour import SwarmPioneer
 from .monitor import SwarmMonitor
+from .thesisstep import ThesisStep
+from .vector import HostStep
 
 _SECTOR = 360.0 / SECTOR_COUNT
 _HALF_SECTOR = _SECTOR / 2
@@ -243,6 +245,14 @@ class ThesisSwarmAgent(SwarmAgent):
     def __init__(self, agent_id: str, *, simulation: bool = False, **kw):
         super().__init__(agent_id, simulation=simulation, **kw)
         self.localize = None  # the Position2d proxy of <robot>:position2d:2
+
+    def _join_hub(self):
+        """The host's hub, whose batch step (``vector``, the default) is the thesis robots'
+        (:class:`.thesisstep.ThesisStep`: one step on arrays for all of them, their own cycle's result)."""
+        hub = super()._join_hub()
+        if type(hub.batch) is HostStep:
+            hub.batch = ThesisStep(hub, lambda: clock().now(), ThesisPioneer)
+        return hub
 
     def _build_shared(self, hub) -> Pioneer:  # a worker thread
         name = self.robot
