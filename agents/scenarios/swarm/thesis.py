@@ -22,7 +22,8 @@ odometry carried it (:meth:`ThesisPioneer.guard`). Its agent also declares the n
 broadcast positions to the localize device at the broadcast rate
 (:meth:`ThesisSwarmAgent.declare_neighbours`, a ``localize`` ``cmd``, or ``rpc/set_obstacles``):
 AMCL leaves out the echoes they explain instead of scoring them against a map without robots
-(:mod:`mrs_bridge.nav.knownobstacles`).
+(:mod:`mrs_bridge.nav.knownobstacles`). With ``vector`` (the default) a host's robots run this cycle
+in one step on arrays (:class:`.thesisstep.ThesisStep`, the same commands for the same inputs).
 
 :class:`ThesisSwarmMonitor` is the :class:`~agents.scenarios.swarm.monitor.SwarmMonitor` with the
 two ground-truth checks the full stack needs: every contact of a robot with a wall or another robot,

@@ -10,13 +10,16 @@ code's, row by row (the equivalence is a unit test, ``tests/agents/test_swarm_ve
   (N, 36) sectors;
 - :class:`VectorState`: the behaviours' state as arrays (command, wall-following, side, heading,
   yaw, the escape timers) with :meth:`VectorState.step`: sectors, time and stall flags in, (N, 2)
-  velocity commands and each row's layer out;
+  velocity commands and each row's layer out; with the body-aware checks of
+  :class:`rsal.behaviours.BehaviourParams` per row (``corridor``: :func:`lane_distances`; ``sweep``:
+  the turn guard) and the sectors without known robots (``walls``, :attr:`.behaviour.Disperse.walls`);
 - :class:`HostStep`: the hook of an agent host's :class:`agents.hub.RobotHub` (``hub.batch``) that
   runs one step for every plain :class:`.behaviour.SwarmPioneer` of the host per control cycle:
   it gathers the robots' latest sonar scans and poses, reads their behaviours' state, steps, writes
   the state back (the per-robot objects stay the truth, so a robot may take either path in any
   cycle) and sends the commands. Robots it cannot take (another class, a laser, no data or beam
-  geometry yet) run their own ``update()``.
+  geometry yet) run their own ``update()``. Its hooks (:meth:`HostStep.row`, :meth:`HostStep.adjust`)
+  let a robot class with more to its cycle run on the same step (:mod:`.thesisstep`).
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rsal.behaviours import _AHEAD, _BEHIND, SECTOR_COUNT
+from rsal.behaviours import _AHEAD, _BEHIND, SECTOR_COUNT  # the lane's sectors, defined once there
 from rsal.client import HOLD_REFRESH
 from rsal.geometry import wrap
 
