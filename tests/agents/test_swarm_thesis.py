@@ -237,3 +237,10 @@ def test_ten_pioneer_3ats_with_full_stacks_swarm_and_are_judged_on_ground_truth(
     assert np.median(errors[np.isfinite(errors)]) < 0.3, f"median localization error {np.nanmedian(errors):.2f} m"
     assert share >= 0.95, f"localization within 0.5 m for {100 * share:.1f} % of robot-time: {v.text}"
     assert v.ok, v.text
+
+
+def test_the_thesis_agent_runs_its_robot_s_own_cycle_unless_asked_for_the_batch_step():
+    # vector: true runs the host's robots in ThesisStep (tests/agents/test_swarm_thesisstep.py);
+    # the default stays each robot's own cycle (docs/benchmarks.md: the 100-robot runs)
+    assert ThesisSwarmAgent("swarm0", robot="r0").vector is False
+    assert ThesisSwarmAgent("swarm0", robot="r0", vector=True).vector is True

@@ -22,7 +22,8 @@ odometry carried it (:meth:`ThesisPioneer.guard`). Its agent also declares the n
 broadcast positions to the localize device at the broadcast rate
 (:meth:`ThesisSwarmAgent.declare_neighbours`, a ``localize`` ``cmd``, or ``rpc/set_obstacles``):
 AMCL leaves out the echoes they explain instead of scoring them against a map without robots
-(:mod:`mrs_bridge.nav.knownobstacles`).
+(:mod:`mrs_bridge.nav.knownobstacles`). With ``vector: true`` a host's robots run this cycle in one
+step on arrays (:class:`.thesisstep.ThesisStep`, the same commands for the same inputs).
 
 :class:`ThesisSwarmMonitor` is the :class:`~agents.scenarios.swarm.monitor.SwarmMonitor` with the
 two ground-truth checks the full stack needs: every contact of a robot with a wall or another robot,
@@ -58,6 +59,8 @@ from rsal.robot import Pioneer
 from .agents import SwarmAgent
 from .behaviour import SwarmPioneer
 from .monitor import SwarmMonitor
+from .thesisstep import ThesisStep
+from .vector import HostStep
 
 _SECTOR = 360.0 / SECTOR_COUNT
 _HALF_SECTOR = _SECTOR / 2
@@ -236,13 +239,25 @@ class ThesisSwarmAgent(SwarmAgent):
     (AMCL on its sonar ring, pose on ``<robot>:position2d:2``) and a planner (``<robot>:planner:0``).
     Its broadcasts carry the AMCL pose (``map`` frame); its behaviour's distances fit its base's
     size (:func:`params_for_size`). Takes every :class:`SwarmAgent` argument; ``simulation`` is
-    false by default (no true pose is read: the AMCL estimate is the only pose the robot has)."""
+    false by default (no true pose is read: the AMCL estimate is the only pose the robot has).
+    ``vector`` is false by default: each robot runs its own cycle; true runs the host's robots in
+    one step on arrays (:class:`.thesisstep.ThesisStep`: the same commands for the same inputs, but
+    at 100 robots its runs so far had 3-4 times the contacts of the per-robot cycle's, not yet
+    explained: docs/benchmarks.md)."""
 
     pioneer_class = ThesisPioneer
 
-    def __init__(self, agent_id: str, *, simulation: bool = False, **kw):
-        super().__init__(agent_id, simulation=simulation, **kw)
+    def __init__(self, agent_id: str, *, simulation: bool = False, vector: bool = False, **kw):
+        super().__init__(agent_id, simulation=simulation, vector=vector, **kw)
         self.localize = None  # the Position2d proxy of <robot>:position2d:2
+
+    def _join_hub(self):
+        """The host's hub, whose batch step (with ``vector``) is the thesis robots'
+        (:class:`.thesisstep.ThesisStep`: one step on arrays for all of them, their own cycle's result)."""
+        hub = super()._join_hub()
+        if type(hub.batch) is HostStep:
+            hub.batch = ThesisStep(hub, lambda: clock().now(), ThesisPioneer)
+        return hub
 
     def _build_shared(self, hub) -> Pioneer:  # a worker thread
         name = self.robot

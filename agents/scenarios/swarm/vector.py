@@ -10,13 +10,16 @@ code's, row by row (the equivalence is a unit test, ``tests/agents/test_swarm_ve
   (N, 36) sectors;
 - :class:`VectorState`: the behaviours' state as arrays (command, wall-following, side, heading,
   yaw, the escape timers) with :meth:`VectorState.step`: sectors, time and stall flags in, (N, 2)
-  velocity commands and each row's layer out;
+  velocity commands and each row's layer out; with the body-aware checks of
+  :class:`rsal.behaviours.BehaviourParams` per row (``corridor``: :func:`lane_distances`; ``sweep``:
+  the turn guard) and the sectors without known robots (``walls``, :attr:`.behaviour.Disperse.walls`);
 - :class:`HostStep`: the hook of an agent host's :class:`agents.hub.RobotHub` (``hub.batch``) that
   runs one step for every plain :class:`.behaviour.SwarmPioneer` of the host per control cycle:
   it gathers the robots' latest sonar scans and poses, reads their behaviours' state, steps, writes
   the state back (the per-robot objects stay the truth, so a robot may take either path in any
   cycle) and sends the commands. Robots it cannot take (another class, a laser, no data or beam
-  geometry yet) run their own ``update()``.
+  geometry yet) run their own ``update()``. Its hooks (:meth:`HostStep.row`, :meth:`HostStep.adjust`)
+  let a robot class with more to its cycle run on the same step (:mod:`.thesisstep`).
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rsal.behaviours import SECTOR_COUNT
+from rsal.behaviours import _AHEAD, _BEHIND, SECTOR_COUNT  # the lane's sectors, defined once there
 from rsal.client import HOLD_REFRESH
 from rsal.geometry import wrap
 
@@ -64,6 +67,12 @@ def sector_span(a0_deg: float, a1_deg: float) -> np.ndarray:
 _FRONT, _LEFT, _RIGHT = sector_span(-30, 30), sector_span(30, 100), sector_span(-100, -30)
 _SIDE_L, _DIAG_L = sector_span(60, 120), sector_span(30, 60)
 _SIDE_R, _DIAG_R = sector_span(-120, -60), sector_span(-60, -30)
+# the sectors a turn's corners swing through (Subsumption.guard_turn): turning left, turning right
+_SWING_L = np.unique(np.concatenate([sector_span(-30, 90), sector_span(-180, -90), sector_span(150, 180)]))
+_SWING_R = np.unique(np.concatenate([sector_span(-90, 30), sector_span(90, 180), sector_span(-180, -150)]))
+# the lane's sectors (rsal.behaviours.lane_distance), in its order: (index, cos, sin) ahead and behind
+_LANE_AHEAD = [(int(i), c, sn) for i, c, sn in _AHEAD]
+_LANE_BEHIND = [(int(i), c, sn) for i, c, sn in _BEHIND]
 
 
 def fuse_rings(beams: np.ndarray, ranges: np.ndarray, range_max: np.ndarray) -> np.ndarray:
@@ -91,6 +100,22 @@ def _min(sectors: np.ndarray, span: np.ndarray) -> np.ndarray:
     return sectors[:, span].min(axis=1)
 
 
+def lane_distances(sectors: np.ndarray, half_width: np.ndarray, behind: bool = False) -> np.ndarray:
+    """:func:`rsal.behaviours.lane_distance` for N rows: (N, 36) sectors and (N,) lane half-widths
+    in, (N,) distances along the heading (backwards: ``behind``) out. Its sectors in its order, with
+    its early skip of a sector no nearer than the best so far (its result, not a plain minimum)."""
+    best = np.full(len(sectors), np.inf)
+    with np.errstate(invalid="ignore"):
+        for i, c, sn in _LANE_BEHIND if behind else _LANE_AHEAD:
+            d = sectors[:, i]
+            if c <= 0.0:
+                continue
+            x = d * c
+            take = (d < best) & (np.abs(d * sn) < half_width) & (x < best)
+            best = np.where(take, x, best)
+    return best
+
+
 class VectorState:
     """The :class:`.behaviour.Disperse` state of N robots as arrays; :meth:`step` is its ``step``
     row by row. Parameters (:class:`rsal.behaviours.BehaviourParams`) are per row too."""
@@ -104,6 +129,8 @@ class VectorState:
         "stuck_time",
         "escape_time",
         "escape_speed",
+        "corridor",
+        "sweep",
     )
 
     def __init__(self, n: int):
@@ -171,11 +198,18 @@ class VectorState:
         return changed
 
     # ------------------------------------------------------------------ the step
-    def step(self, sectors: np.ndarray, now: float, stalled: np.ndarray) -> np.ndarray:
+    def step(self, sectors: np.ndarray, now: float, stalled: np.ndarray, walls: np.ndarray | None = None) -> np.ndarray:
         """One cycle of every row's behaviour: (N, 36) sectors, the time (s) and (N,) stall flags in;
-        (N, 2) ``(v, w)`` out (:attr:`state`: each row's layer)."""
+        (N, 2) ``(v, w)`` out (:attr:`state`: each row's layer). ``walls``: (N, 36) sectors without
+        the echoes known to be other robots (:attr:`.behaviour.Disperse.walls`; None: the sectors).
+        Rows with ``corridor`` > 0 read the front in their lane and back up only into a clear one,
+        rows with ``sweep`` > 0 drop a turn that would swing a corner into something
+        (:meth:`rsal.behaviours.Subsumption.guard_turn`)."""
         n = self.n
         front, left, right = _min(sectors, _FRONT), _min(sectors, _LEFT), _min(sectors, _RIGHT)
+        lane = self.corridor > 0
+        if lane.any():
+            front = np.where(lane, lane_distances(sectors, self.corridor), front)
         moving = self.wallfollow | (np.abs(self.cmd[:, 0]) > 1e-3)
         out = np.zeros((n, 2))
         done = np.zeros(n, dtype=bool)
@@ -195,6 +229,11 @@ class VectorState:
         esc = escaping | trigger
         out[esc, 0] = self.escape_speed[esc]
         out[esc, 1] = self.turn_rate[esc] * self.escape_turn[esc]
+        back = esc & lane
+        if back.any():  # back up only into a clear lane behind
+            behind = lane_distances(sectors[back], self.corridor[back], behind=True)
+            rows = np.flatnonzero(back)[behind < self.stop_dist[back]]
+            out[rows, 0] = 0.0
         state[esc] = ESCAPE
         done |= esc
 
@@ -214,7 +253,13 @@ class VectorState:
         sign = np.where(self.left_side, 1.0, -1.0)
         side_d = np.where(self.left_side, _min(sectors, _SIDE_L), _min(sectors, _SIDE_R))
         diag = np.where(self.left_side, _min(sectors, _DIAG_L), _min(sectors, _DIAG_R))
-        nowall = np.minimum(side_d, diag) > 2.5 * self.wall_dist
+        ws = sectors if walls is None else walls  # a wall in sight, not only robots? (Disperse.step)
+        if walls is None:
+            ws_side, ws_diag = side_d, diag
+        else:
+            ws_side = np.where(self.left_side, _min(ws, _SIDE_L), _min(ws, _SIDE_R))
+            ws_diag = np.where(self.left_side, _min(ws, _DIAG_L), _min(ws, _DIAG_R))
+        nowall = np.minimum(ws_side, ws_diag) > 2.5 * self.wall_dist
         follow = wf & ~nowall
         with np.errstate(invalid="ignore"):
             diag_d = diag * _SIN65
@@ -235,6 +280,12 @@ class VectorState:
             out[has, 0] = self.cruise_speed[has] * np.where(np.abs(herr) < 0.8, 1.0, 0.4)
         state[disp] = DISPERSE
         done |= wf
+
+        # the turn guard of every layer that turns: escape, avoid, wall-following, a heading
+        guard = (esc | av | follow | has) & (self.sweep > 0) & (out[:, 1] != 0.0)
+        if guard.any():
+            near = np.where(out[:, 1] > 0, _min(sectors, _SWING_L), _min(sectors, _SWING_R))
+            out[guard & (near < self.sweep), 1] = 0.0
 
         # 4. command
         rest = ~done
@@ -280,8 +331,18 @@ class HostStep:
     def takes(r) -> bool:
         return type(r) is SwarmPioneer and r.vectorised and not r.laser_enabled and len(r.sonars) == 1
 
+    def row(self, r):
+        """What else a row needs beyond its odometry and scan (a subclass's hook, called once the
+        robot is known to be stepped, so it may act for the robot's cycle); None: its own update()."""
+        return ()
+
+    def adjust(self, rows: list, extra: list, pose: np.ndarray, sectors: np.ndarray):
+        """A subclass's hook before the step: (sectors, walls or None, (N,) yaw) from the rows, their
+        :meth:`row` data, their odometry poses and their sonar sectors."""
+        return sectors, None, pose[:, 2].copy()
+
     def __call__(self, robots: list) -> list:
-        rest, rows, poses, scans, rmax, beams, stall, last = [], [], [], [], [], [], [], []
+        rest, rows, poses, scans, rmax, beams, stall, last, extra = [], [], [], [], [], [], [], [], []
         k = None
         for r in robots:
             if not self.takes(r):
@@ -298,6 +359,10 @@ class HostStep:
             elif len(geo) != k:
                 rest.append(r)
                 continue
+            x = self.row(r)
+            if x is None:
+                rest.append(r)
+                continue
             b = self._beams.get(id(r))
             if b is None or len(b) != k:
                 b = self._beams[id(r)] = np.array(geo, dtype=float)
@@ -307,6 +372,7 @@ class HostStep:
             rmax.append(sm.range_max)
             beams.append(b)
             stall.append(bool(m.stall))
+            extra.append(x)
             lp = r._last_pose
             last.append((math.nan, math.nan) if lp is None else (lp.x, lp.y))
         if not rows:
@@ -320,19 +386,19 @@ class HostStep:
         zero = rm == 0.0
         if zero.any():
             rm[zero] = ranges[zero].max(axis=1)
-        sectors = fuse_rings(np.stack(beams), ranges, rm)
+        sectors, walls, yaw = self.adjust(rows, extra, pose, fuse_rings(np.stack(beams), ranges, rm))
         behaviours = [r.behaviour for r in rows]
         st, self._params = read_state(behaviours, self._params)
-        st.yaw = pose[:, 2].copy()
-        out = st.step(sectors, self.now(), np.array(stall, dtype=bool))
+        st.yaw = yaw
+        out = st.step(sectors, self.now(), np.array(stall, dtype=bool), walls)
         changed = set(st.write(behaviours))
         cmds = np.round(out, 3).tolist()
         moved = np.hypot(*(pose[:, :2] - np.array(last, dtype=float)).T)
         moved = np.where(np.isnan(moved), 0.0, moved).tolist()  # 0 for a robot's first cycle
         t1 = time.perf_counter()
-        rows_out = zip(rows, poses, behaviours, cmds, moved, strict=True)
-        for i, (r, p, b, c, d) in enumerate(rows_out):
-            b.yaw = p[2]
+        rows_out = zip(rows, poses, behaviours, yaw.tolist(), cmds, moved, strict=True)
+        for i, (r, p, b, y, c, d) in enumerate(rows_out):
+            b.yaw = y
             r.distance += d
             r._last_pose = _Pose(*p)
             if i in changed:
