@@ -245,7 +245,7 @@ async def _host(args) -> dict:
             extra["cell_dups"] = cells.duplicates
             extra["pub_declared"] = host.services.publishers_declared
         if near and mon is not None:
-            extra = {
+            extra |= {
                 "radius": near,
                 "cell": args.cell_size or near,
                 "monitor_missed": res.monitor_missed,
