@@ -244,6 +244,7 @@ async def _host(args) -> dict:
             extra["cell_switches"] = cells.switches
             extra["cell_dups"] = cells.duplicates
             extra["pub_declared"] = host.services.publishers_declared
+        extra["threads"] = _threads()  # the host process's OS threads (Zenoh's and its callbacks' included)
         if near and mon is not None:
             extra |= {
                 "radius": near,
@@ -284,6 +285,15 @@ async def _host(args) -> dict:
             **extra,
             "hist": hist.to_dict(),
         }
+
+
+def _threads() -> int | None:
+    """The OS threads of this process (Linux: /proc/self/status), None elsewhere."""
+    try:
+        with open("/proc/self/status") as f:
+            return next((int(ln.split()[1]) for ln in f if ln.startswith("Threads:")), None)
+    except OSError:
+        return None
 
 
 def host_main(args) -> None:
@@ -350,7 +360,7 @@ def _run_host(
         if r.get("update_cpu_us") is not None:
             r["update_cpu_us"] = round(sum(x["update_cpu_us"] for x in results) / len(results), 1)
         r["host_cpu_each"] = ",".join(str(x["host_cpu"]) for x in results)
-        for key in ("cells", "cell_subs", "cell_switches", "cell_dups", "pub_declared"):
+        for key in ("cells", "cell_subs", "cell_switches", "cell_dups", "pub_declared", "threads"):
             if key in r:
                 r[key] = ",".join(str(x.get(key)) for x in results)
         r["delivery_pct"] = round(100.0 * r["delivered"] / r["expected"], 4) if r["expected"] else 0.0
