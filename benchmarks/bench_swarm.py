@@ -120,6 +120,7 @@ async def _host(args) -> dict:
         transport = TransportArgs(connect=[args.connect])
     near = args.neighbourhood if args.form == "near" else 0.0
     async with AgentHost.connect(transport) as host:
+        host.services.cache_publishers = args.pubcache
         t0 = time.perf_counter()
         mon = None
         if near and args.index == 0:  # the ground-truth judge, listening to every cell before the first broadcast
@@ -258,6 +259,8 @@ async def _host(args) -> dict:
             "hosts": args.hosts,
             "vector": args.vector,
             "crowd": bool(args.crowd and not bare),
+            "pubcache": args.pubcache,
+            "wildcard_cells": args.wildcard_cells,
             "mode": args.mode,
             "form": "near" if near else "all",
             "startup_s": round(startup, 1),
@@ -329,6 +332,7 @@ def _run_host(
                 cmd += ["--profile", f"{args.profile}.h{k}"]
             cmd += ["--seconds", str(args.seconds), "--warmup", str(args.warmup), "--sim-pid", str(sim_pid)]
             cmd += ["--host-timeout", str(args.host_timeout), "--wildcard-cells", str(args.wildcard_cells)]
+            cmd += [] if args.pubcache else ["--no-pubcache"]
             procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT))
             if mode == "bare" and k == 0:
                 time.sleep(1.0)  # the first host listens; the others connect to it
@@ -474,6 +478,12 @@ def main() -> None:
         default=DEFAULT_WILDCARD_ABOVE,
         help="near form: a host watching more cells holds one wildcard subscriber filtered by cell "
         f"(default {DEFAULT_WILDCARD_ABOVE}; 0: a subscriber per cell always)",
+    )
+    ap.add_argument(
+        "--no-pubcache",
+        dest="pubcache",
+        action="store_false",
+        help="near form: every broadcast a Session.put instead of a cached publisher per agent and cell (as before)",
     )
     ap.add_argument("--index", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--first", type=int, default=0, help=argparse.SUPPRESS)
