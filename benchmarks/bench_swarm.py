@@ -338,6 +338,14 @@ def _run_host(
                 time.sleep(1.0)  # the first host listens; the others connect to it
         results = []
         try:
+            while any(p.poll() is None for p in procs):  # a host that ended without a result ends the run
+                dead = [k for k, p in enumerate(procs) if p.poll() not in (None, 0)]
+                if dead:
+                    err = procs[dead[0]].stderr.read()
+                    raise RuntimeError(
+                        f"agent host {dead[0]} for {n} robots failed (exit {procs[dead[0]].returncode}):\n{err[-2000:]}"
+                    )
+                time.sleep(0.5)
             for p in procs:
                 out, err = p.communicate(timeout=args.seconds + args.warmup + args.host_timeout)
                 r = next((json.loads(ln[7:]) for ln in out.splitlines() if ln.startswith("RESULT ")), None)
