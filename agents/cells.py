@@ -6,7 +6,8 @@ network". Here a sender publishes on ``svc/<service>/<cell>/<sender>``, where ``
 square of side ``size`` metres its position falls in (``c<ix>_<iy>``, :func:`cell_of`), and a
 receiver subscribes only to the cells that come within ``radius`` of where it is
 (:func:`cells_near`; :func:`cells_near_many` for many receivers in one numpy pass), re-subscribing
-as it moves (:class:`agents.services.CellSubscription`).
+as it moves (:class:`agents.cellsub.CellSubscription`: a subscriber per cell, or one wildcard
+subscriber filtered by cell when the cells are many).
 
 Delivery within the radius is complete if the subscription is never late: a receiver that
 re-computes its cells every ``refresh`` seconds and moves at most ``speed`` m/s subscribes with a

@@ -17,8 +17,9 @@ a hundred threads contending for the GIL and a hundred decodings of every broadc
   the host's blackboard :attr:`RobotHub.board` (every agent of the host receives the same messages)
   and handed to the listeners once per message, on the loop (SPADE's local delivery short-cut);
 - or, neighbourhood-scoped (:meth:`listen_near`, :mod:`agents.cells`): one
-  :class:`agents.services.CellSubscription` over the union of the cells within ``radius + margin``
-  of each of its robots, re-watched every ``refresh`` seconds from the robots' own poses; each agent's
+  :class:`agents.cellsub.CellSubscription` over the union of the cells within ``radius + margin``
+  of each of its robots (a subscriber per cell, or one wildcard subscriber filtered by cell above
+  ``wildcard_above`` cells), re-watched every ``refresh`` seconds from the robots' own poses; each agent's
   own cells are kept (:meth:`receivers` names the agents whose cells hold a message's cell), and the
   latest poses received are also kept as arrays (:meth:`near`: the poses within a distance, one
   numpy expression instead of a walk over the board).
@@ -51,8 +52,9 @@ from rsal.data import Board, BoardObject, Position
 from rsal.robot import Robot
 
 from .cells import cell_of, cells_near, cells_near_many
+from .cellsub import DEFAULT_WILDCARD_ABOVE, CellSubscription
 from .runtime import Agent, AgentHost
-from .services import CellSubscription, Message, SendPosition, Subscription
+from .services import Message, SendPosition, Subscription
 
 __all__ = ["DEFAULT_TEMPLATES", "Listener", "RobotHub"]
 
@@ -151,12 +153,21 @@ class RobotHub:
             self._sub = self.host.services.subscribe(SendPosition.SERVICE, self._on_position, owner="robot-hub")
 
     def listen_near(
-        self, radius: float, cell_size: float, margin: float, refresh: float, listener: Listener | None = None
+        self,
+        radius: float,
+        cell_size: float,
+        margin: float,
+        refresh: float,
+        listener: Listener | None = None,
+        *,
+        wildcard_above: int = DEFAULT_WILDCARD_ABOVE,
     ) -> None:
         """Subscribe to ``send_position`` in the cells (:mod:`agents.cells`, squares of ``cell_size``
         m) within ``radius + margin`` m of any of the host's robots, re-watched every ``refresh``
         seconds as they move, and call ``listener`` once per message. Every agent of the host that
-        listens near shares one radius and cell size (the first one asked for)."""
+        listens near shares one radius and cell size (the first one asked for). Above
+        ``wildcard_above`` cells (0: never) the hub holds one subscriber on every cell and drops the
+        others' messages itself (:mod:`agents.cellsub`)."""
         if not (radius > 0 and cell_size > 0 and margin >= 0 and refresh > 0):
             raise ValueError(
                 f"neighbourhood radius {radius!r}, cell size {cell_size!r}, margin {margin!r} and refresh "
@@ -177,7 +188,9 @@ class RobotHub:
         if self._cells is None:
             self.radius, self.cell_size = float(radius), float(cell_size)
             self.margin, self.refresh = float(margin), float(refresh)
-            self._cells = self.host.services.subscribe_cells(SendPosition.SERVICE, self._on_position, owner="robot-hub")
+            self._cells = self.host.services.subscribe_cells(
+                SendPosition.SERVICE, self._on_position, owner="robot-hub", wildcard_above=wildcard_above
+            )
             self._watch_task = self.host.spawn(self._rewatch_loop(), "robot hub cell watch")
         else:
             self.margin = max(self.margin, float(margin))

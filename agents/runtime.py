@@ -209,6 +209,7 @@ class AgentHost:
         for sub in agent._subs:
             sub.close()
         agent._subs.clear()
+        self.services.release(agent.id)  # its cell broadcasts' publishers
         for handle in (agent._hello_q, agent._token):
             if handle is not None:
                 try:
@@ -271,6 +272,7 @@ class AgentHost:
             t.cancel()
         if self._tasks:
             await asyncio.gather(*self._tasks, return_exceptions=True)
+        self.services.release()
         if self._own:
             try:
                 self.session.close()

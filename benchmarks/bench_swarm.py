@@ -120,12 +120,15 @@ async def _host(args) -> dict:
         transport = TransportArgs(connect=[args.connect])
     near = args.neighbourhood if args.form == "near" else 0.0
     async with AgentHost.connect(transport) as host:
+        host.services.cache_publishers = args.pubcache
         t0 = time.perf_counter()
         mon = None
         if near and args.index == 0:  # the ground-truth judge, listening to every cell before the first broadcast
             mon = SwarmMonitor("monitor", robots=n, duration=1e9, neighbourhood=near, startup_timeout=300)
             await host.start(mon)
         kw = {"neighbourhood": near, "cell_size": args.cell_size} if near else {}
+        if near:
+            kw["wildcard_cells"] = args.wildcard_cells
         kw["vector"] = args.vector
         if args.crowd and not bare:
             kw["crowd"] = True
@@ -235,8 +238,16 @@ async def _host(args) -> dict:
         cpu = s1["cpu"] - s0["cpu"]
         upd_cpu = (s1["busy_cpu"] - s0["busy_cpu"]) / max(1, s1["updates"] - s0["updates"])
         extra = {}
+        cells = agents[0]._hub._cells if near and not bare and agents[0]._hub is not None else None
+        if cells is not None:  # the hub's cell subscription at the end of the window
+            extra["cells"] = len(cells.cells)
+            extra["cell_subs"] = cells.subscribers
+            extra["cell_switches"] = cells.switches
+            extra["cell_dups"] = cells.duplicates
+            extra["pub_declared"] = host.services.publishers_declared
+        extra["threads"] = _threads()  # the host process's OS threads (Zenoh's and its callbacks' included)
         if near and mon is not None:
-            extra = {
+            extra |= {
                 "radius": near,
                 "cell": args.cell_size or near,
                 "monitor_missed": res.monitor_missed,
@@ -248,6 +259,8 @@ async def _host(args) -> dict:
             "hosts": args.hosts,
             "vector": args.vector,
             "crowd": bool(args.crowd and not bare),
+            "pubcache": args.pubcache,
+            "wildcard_cells": args.wildcard_cells,
             "mode": args.mode,
             "form": "near" if near else "all",
             "startup_s": round(startup, 1),
@@ -275,6 +288,15 @@ async def _host(args) -> dict:
             **extra,
             "hist": hist.to_dict(),
         }
+
+
+def _threads() -> int | None:
+    """The OS threads of this process (Linux: /proc/self/status), None elsewhere."""
+    try:
+        with open("/proc/self/status") as f:
+            return next((int(ln.split()[1]) for ln in f if ln.startswith("Threads:")), None)
+    except OSError:
+        return None
 
 
 def host_main(args) -> None:
@@ -309,12 +331,21 @@ def _run_host(
             if args.profile:
                 cmd += ["--profile", f"{args.profile}.h{k}"]
             cmd += ["--seconds", str(args.seconds), "--warmup", str(args.warmup), "--sim-pid", str(sim_pid)]
-            cmd += ["--host-timeout", str(args.host_timeout)]
+            cmd += ["--host-timeout", str(args.host_timeout), "--wildcard-cells", str(args.wildcard_cells)]
+            cmd += [] if args.pubcache else ["--no-pubcache"]
             procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT))
             if mode == "bare" and k == 0:
                 time.sleep(1.0)  # the first host listens; the others connect to it
         results = []
         try:
+            while any(p.poll() is None for p in procs):  # a host that ended without a result ends the run
+                dead = [k for k, p in enumerate(procs) if p.poll() not in (None, 0)]
+                if dead:
+                    err = procs[dead[0]].stderr.read()
+                    raise RuntimeError(
+                        f"agent host {dead[0]} for {n} robots failed (exit {procs[dead[0]].returncode}):\n{err[-2000:]}"
+                    )
+                time.sleep(0.5)
             for p in procs:
                 out, err = p.communicate(timeout=args.seconds + args.warmup + args.host_timeout)
                 r = next((json.loads(ln[7:]) for ln in out.splitlines() if ln.startswith("RESULT ")), None)
@@ -341,6 +372,9 @@ def _run_host(
         if r.get("update_cpu_us") is not None:
             r["update_cpu_us"] = round(sum(x["update_cpu_us"] for x in results) / len(results), 1)
         r["host_cpu_each"] = ",".join(str(x["host_cpu"]) for x in results)
+        for key in ("cells", "cell_subs", "cell_switches", "cell_dups", "pub_declared", "threads"):
+            if key in r:
+                r[key] = ",".join(str(x.get(key)) for x in results)
         r["delivery_pct"] = round(100.0 * r["delivered"] / r["expected"], 4) if r["expected"] else 0.0
     hist = LatencyHistogram()
     for x in results:
@@ -407,6 +441,8 @@ def _run_sim_and_host(n: int, form: str, args, hosts: int = 1, vector: bool = Tr
 
 
 def main() -> None:
+    from agents.cellsub import DEFAULT_WILDCARD_ABOVE
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--robots", default="100", help="comma-separated robot counts (default 100)")
     ap.add_argument("--seconds", type=float, default=30.0, help="measured wall seconds per run (default 30)")
@@ -443,6 +479,19 @@ def main() -> None:
         "--before",
         action="store_true",
         help="also run each form as before: one host, no vectorised step (same run, same crowd)",
+    )
+    ap.add_argument(
+        "--wildcard-cells",
+        type=int,
+        default=DEFAULT_WILDCARD_ABOVE,
+        help="near form: a host watching more cells holds one wildcard subscriber filtered by cell "
+        f"(default {DEFAULT_WILDCARD_ABOVE}; 0: a subscriber per cell always)",
+    )
+    ap.add_argument(
+        "--no-pubcache",
+        dest="pubcache",
+        action="store_false",
+        help="near form: every broadcast a Session.put instead of a cached publisher per agent and cell (as before)",
     )
     ap.add_argument("--index", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--first", type=int, default=0, help=argparse.SUPPRESS)

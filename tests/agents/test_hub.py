@@ -160,21 +160,24 @@ class MovingRobot(CountingRobot):
 
 
 class NearMember(Member):
-    def __init__(self, agent_id: str, robot: str, listener=None):
+    def __init__(self, agent_id: str, robot: str, listener=None, wildcard_above: int = 64):
         super().__init__(agent_id, listener)
         self.robot = robot
+        self.wildcard_above = wildcard_above
 
     async def created(self) -> None:
         self.hub = RobotHub.attach(self._require_host(), self, period=0.02)
-        self.hub.listen_near(2.0, 2.0, 0.5, 0.05, self.listener)
+        self.hub.listen_near(2.0, 2.0, 0.5, 0.05, self.listener, wildcard_above=self.wildcard_above)
 
 
-def test_neighbourhood_cells_follow_the_robots_and_reach_only_their_receivers(net):
+@pytest.mark.parametrize("wildcard_above", [64, 4], ids=["a subscriber per cell", "one wildcard subscriber"])
+def test_neighbourhood_cells_follow_the_robots_and_reach_only_their_receivers(net, wildcard_above):
     from agents.cells import cell_of, cells_near
 
     lt, host, other = net
     heard = []
-    a, b = NearMember("a", "ra", lambda hub, msg, now: heard.append(msg)), NearMember("b", "rb")
+    a = NearMember("a", "ra", lambda hub, msg, now: heard.append(msg), wildcard_above)
+    b = NearMember("b", "rb", wildcard_above=wildcard_above)
     lt.run(host.start(a))
     lt.run(host.start(b))
     hub = a.hub
@@ -183,6 +186,8 @@ def test_neighbourhood_cells_follow_the_robots_and_reach_only_their_receivers(ne
     lt.run(_call(hub.add_robot, "rb", rb))
     assert hub.agent_cells["a"] == frozenset(cells_near(0.5, 0.5, 2.5, 2.0))
     assert hub._cells.cells == set(cells_near(0.5, 0.5, 2.5, 2.0)) | set(cells_near(20.5, 0.5, 2.5, 2.0))
+    # 18 cells: one per cell under the default threshold, one on every cell above 4
+    assert hub._cells.subscribers == (1 if wildcard_above < 18 else 18) and hub._cells.wildcard == (wildcard_above < 18)
     talker = Agent("talker")
     lt.run(other.start(talker))
 

@@ -310,13 +310,17 @@ def test_hundred_robots_sixty_seconds(procs, sim_time, tmp_path):
 
 
 # ---------------------------------------------------------------------------- neighbourhood
-@pytest.mark.parametrize("crowd", [False, True], ids=["proxies", "crowd"])
-def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, sim_time, tmp_path, crowd):
+@pytest.mark.parametrize(
+    "crowd, wildcard", [(False, 64), (True, 64), (True, 0)], ids=["proxies", "crowd", "crowd-cell-subscribers"]
+)
+def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, sim_time, tmp_path, crowd, wildcard):
     """16 robots 2.5 m apart (gps: their position2d is the true pose), neighbourhood 3 m in cells
     of 1.5 m: the monitor's ground-truth verdict has 100 % delivery within the radius; no message
     reached a receiver farther than the reach of its cells; some broadcasts were out of every
     cell's reach (the scoping works) and robots crossed cell borders. Both with the robots' device
-    proxies and through the simulator's crowd device (``crowd: true``, the ``thousand`` app's path)."""
+    proxies and through the simulator's crowd device (``crowd: true``, the ``thousand`` app's path);
+    the host's ~100 cells through one wildcard subscriber (``wildcard_cells`` 64, the default) and
+    through a subscriber per cell (0)."""
     from agents.cells import cell_of
 
     n, radius, cell, duration = 16, 3.0, 1.5, 20.0
@@ -331,7 +335,13 @@ def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, s
             await asyncio.to_thread(sim_time, host.session)
             agents = [
                 SwarmAgent(
-                    f"swarm{i}", robot=f"r{i}", startup_timeout=120, neighbourhood=radius, cell_size=cell, crowd=crowd
+                    f"swarm{i}",
+                    robot=f"r{i}",
+                    startup_timeout=120,
+                    neighbourhood=radius,
+                    cell_size=cell,
+                    crowd=crowd,
+                    wildcard_cells=wildcard,
                 )
                 for i in range(n)
             ]
@@ -342,9 +352,13 @@ def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, s
             await host.start(mon)  # listening before the first broadcast
             await asyncio.gather(*(host.start(a) for a in agents))
             await _until(lambda: mon.verdict is not None, duration * 4 + 120, "the monitor's verdict")
-            return mon, agents, agents[0]._hub.rewatches, agents[0].margin
+            cells = agents[0]._hub._cells
+            form = (len(cells.cells), cells.subscribers, cells.wildcard)
+            return mon, agents, agents[0]._hub.rewatches, agents[0].margin, form
 
-    mon, agents, rewatches, margin = asyncio.run(run())
+    mon, agents, rewatches, margin, (watched, subscribers, wild) = asyncio.run(run())
+    print(f"\nthe host watched {watched} cells through {subscribers} subscriber(s)")
+    assert watched > 64 and wild == bool(wildcard) and subscribers == (1 if wildcard else watched)
     v = mon.verdict
     print(f"\nneighbourhood swarm n={n} r={radius} cell={cell}: {v.text}; rewatches={rewatches}")
     assert v.ok and f"delivery within {radius:g} m 100.0 %" in v.text, v.text

@@ -43,6 +43,7 @@ import numpy as np
 
 from agents.cells import cell_of
 from agents.cells import margin as cell_margin
+from agents.cellsub import DEFAULT_WILDCARD_ABOVE
 from agents.classes import RobotAgent
 from agents.hub import RobotHub, robot_xy
 from agents.registry import agent_class
@@ -112,7 +113,9 @@ class SwarmAgent(RobotAgent):
     in the cell of its pose on a grid of ``cell_size`` m (default R) and hears the cells within
     R + ``margin`` of its robot (default :func:`agents.cells.margin` of ``max_speed`` m/s over one
     ``report_every``), re-watched every ``report_every`` seconds by the host's hub; it needs the
-    shared subscription, and every agent of a swarm the same R and cell size.
+    shared subscription, and every agent of a swarm the same R and cell size. A host that watches
+    more than ``wildcard_cells`` cells (default 64; 0: never) holds one subscriber on every cell
+    and drops the messages of the cells it does not watch itself (:mod:`agents.cellsub`).
 
     ``vector`` (default true): with the shared subscription, the host's hub runs one vectorised
     behaviour step for all its swarm robots per control cycle (:class:`.vector.HostStep`, the same
@@ -149,6 +152,7 @@ class SwarmAgent(RobotAgent):
         max_speed: float = 0.5,
         vector: bool = True,
         crowd: bool = False,
+        wildcard_cells: int = DEFAULT_WILDCARD_ABOVE,
     ):
         super().__init__(
             agent_id,
@@ -187,6 +191,11 @@ class SwarmAgent(RobotAgent):
         if margin is not None and (isinstance(margin, bool) or not isinstance(margin, (int, float)) or margin < 0):
             raise ValueError(f"agent {agent_id}: margin {margin!r} must be a number of metres >= 0")
         self.margin = cell_margin(max_speed, self.report_every) if margin is None else float(margin)
+        if isinstance(wildcard_cells, bool) or not isinstance(wildcard_cells, int) or wildcard_cells < 0:
+            raise ValueError(
+                f"agent {agent_id}: wildcard_cells {wildcard_cells!r} must be a whole number >= 0 (0: never)"
+            )
+        self.wildcard_cells = wildcard_cells
         if self.neighbourhood and not self.shared:
             raise ValueError(f"agent {agent_id}: a neighbourhood needs the host's shared subscription (shared: true)")
         #: neighbourhood: the (sender, sequence number) pairs received (:mod:`.ledger`)
@@ -323,7 +332,12 @@ class SwarmAgent(RobotAgent):
             if self.neighbourhood:
                 self._ledger, self._headings = _near_hooks(self._hub)
                 self._hub.listen_near(
-                    self.neighbourhood, self.cell_size, self.margin, self.report_every, self._ledger.on_message
+                    self.neighbourhood,
+                    self.cell_size,
+                    self.margin,
+                    self.report_every,
+                    self._ledger.on_message,
+                    wildcard_above=self.wildcard_cells,
                 )
             elif self.shared:
                 self._hub.listen(_account_shared)
