@@ -230,3 +230,29 @@ def test_crowd_layout_and_messages_round_trip():
     c = CrowdCmd(np.int32([1, 0]), np.float64([0.1, 0.2]), np.float64([0.0, -0.1]))
     back = CrowdCmd.from_bytes(c.to_msgpack())
     assert back.idx.tolist() == [1, 0] and back.v.tolist() == [0.1, 0.2] and back.w.tolist() == [0.0, -0.1]
+
+
+def test_a_robot_nobody_reads_is_passed_over_by_one_flag_and_its_battery_still_reports(sim, client):
+    from mrs_bridge.drivers.sim import SimDriver
+
+    drv = {d.model: d for d in sim.server.drivers_of(SimDriver)}
+    wait_until(lambda: all(d._heard is not None for d in drv.values()), 10, "the robots' first step")
+    assert not any(d._heard.any for d in drv.values())
+    got_p, _, sub_p = _collector(client.session, "rsal/r0/position2d/0/data")
+    got_s, _, sub_s = _collector(client.session, "rsal/r0/sonar/0/data")
+    got_b, _, sub_b = _collector(client.session, "rsal/r1/power/0/data")  # outside the flag: every step
+    try:
+        wait_until(lambda: len(got_p) >= 2 and len(got_s) >= 2, 10, "r0's pose and scans")
+        assert drv["r0"]._heard.any and not drv["r1"]._heard.any and not drv["r2"]._heard.any
+        wait_until(lambda: len(got_b) >= 1, 10, "r1's battery report (once per simulated second)")
+        sub_p.undeclare()
+        sub_p = None
+        wait_until(lambda: not sim.server.devices[DeviceAddr("r0", "position2d", 0)].listened, 5, "the match to end")
+        assert drv["r0"]._heard.any  # its sonar is still read
+        n = len(got_s)
+        wait_until(lambda: len(got_s) >= n + 2, 10, "scans after the pose's reader left")
+    finally:
+        for sub in (sub_p, sub_s, sub_b):
+            if sub is not None:
+                sub.undeclare()
+    wait_until(lambda: not drv["r0"]._heard.any, 5, "r0's flag to drop with its last reader")
