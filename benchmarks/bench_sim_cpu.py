@@ -255,7 +255,8 @@ def main() -> int:
     t0, p0, th0, w0 = world.time, time.process_time(), time.thread_time(), time.perf_counter()
     run_until(args.warmup + args.sim_seconds)
     t1, p1, th1, w1 = world.time, time.process_time(), time.thread_time(), time.perf_counter()
-    others = split_threads(cpu0, thread_cpu(), main_tid, raycast_tids)
+    cpu1 = thread_cpu()
+    others = split_threads(cpu0, cpu1, main_tid, raycast_tids)
     if prof:
         prof.disable()
     sim = t1 - t0
@@ -286,7 +287,7 @@ def main() -> int:
         "main_thread": round(main_t, 3),
         "other_threads": round(total - main_t, 3),
         **{k: round(v / (t1 - t0), 3) for k, v in others.items()},
-        "threads": len(thread_cpu()),
+        "threads": len(cpu1),
         "published_per_sim_s": round(server.stats["published"] / max(world.time, 1e-9)),
         "published": server.stats["published"],
     }
