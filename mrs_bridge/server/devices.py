@@ -7,6 +7,9 @@ first ``update()`` ("ready means ready", :meth:`_Devices._announce`); :meth:`_De
 withdraws and returns the tokens of hardware that stops answering. Outbound: ``publish`` (the
 hot path), ``publish_event``, and ``send``/``request`` to other devices, local or remote.
 
+The per-device callbacks (``cmd``, ``rpc``, matching) run on Zenoh's network threads
+(:func:`_direct`), not on a Python thread each.
+
 A device's ``data`` is published only while someone listens: each data publisher has a Zenoh
 matching listener that keeps :attr:`_Device.listened` (a plain bool, read on the hot path) up to
 date, ``publish`` drops a message nobody subscribes to before encoding it, and drivers ask
@@ -45,6 +48,15 @@ if TYPE_CHECKING:
 #: Zenoh calls each matching listener on a thread of its own: the flags of a :class:`ListenGroup`
 #: are recomputed under this lock, so two devices of one group changing at once leave it right.
 _MATCH_LOCK = threading.Lock()
+
+
+def _direct(fn):
+    """``fn`` as a callback run on Zenoh's own network thread. zenoh-python otherwise starts a
+    Python thread per callback: three per device (``cmd``, ``rpc``, matching), 12,000 threads for
+    a simulator of 1000 robots, which then failed to start with "can't start new thread" on a
+    machine whose other processes held threads too. Every callback here only checks, stores and
+    hands over (the inbox, a bool) and never blocks (a full inbox's busy reply does not wait)."""
+    return zenoh.handlers.Callback(fn, indirect=False)
 
 
 class ListenGroup:
@@ -123,7 +135,7 @@ class _Devices:
         dev.pub = s.declare_publisher(keys.data_key(addr))
         # Data only while someone listens: the listener keeps a bool the hot path reads; the status
         # is read once after declaring it, so a subscriber that existed before is not missed.
-        dev.matcher = dev.pub.declare_matching_listener(dev._on_match)
+        dev.matcher = dev.pub.declare_matching_listener(_direct(dev._on_match))
         st = dev.pub.matching_status  # a MatchingStatus (zenoh 1.10; its stub says bool)
         dev.listened = bool(getattr(st, "matching", st))
         # Reliable, but never blocking: the scheduler publishes, and a peer that reads slowly must
@@ -135,9 +147,11 @@ class _Devices:
             congestion_control=zenoh.CongestionControl.DROP,
         )
         dev.cmd_sub = s.declare_subscriber(
-            keys.cmd_key(addr), lambda smp, a=addr: self._on_sample(("cmd", a), smp.payload, MAX_PAYLOAD)
+            keys.cmd_key(addr), _direct(lambda smp, a=addr: self._on_sample(("cmd", a), smp.payload, MAX_PAYLOAD))
         )
-        dev.rpc_q = s.declare_queryable(f"{keys.PREFIX}/{addr.path}/rpc/*", lambda q, a=addr: self._on_query(a, q))
+        dev.rpc_q = s.declare_queryable(
+            f"{keys.PREFIX}/{addr.path}/rpc/*", _direct(lambda q, a=addr: self._on_query(a, q))
+        )
         self.devices[addr] = dev
         self._pub_cache.clear()
 
