@@ -10,7 +10,10 @@ sonars; r1 reports ground truth, ``localization = "gps"``) and a Pioneer 3AT (16
   stops when crowd commands stop (command timeout), a latched emergency stop refuses its row;
   malformed commands are warned about, and the server serves on;
 - a device's ``data`` is built and put only while a subscriber matches it: none is built without
-  one, and a subscriber declared later receives data.
+  one, and a subscriber declared later receives data; a robot none of whose data devices is read
+  is passed over by one flag (its battery still reports);
+- declaring devices starts no thread per device (their callbacks run on Zenoh's threads), and
+  their rpcs and commands still work.
 """
 
 from __future__ import annotations
@@ -256,3 +259,26 @@ def test_a_robot_nobody_reads_is_passed_over_by_one_flag_and_its_battery_still_r
             if sub is not None:
                 sub.undeclare()
     wait_until(lambda: not drv["r0"]._heard.any, 5, "r0's flag to drop with its last reader")
+
+
+def test_declaring_devices_starts_no_thread_per_device(fabric_factory):
+    import os
+
+    robots = [pioneer2dx(f"r{i}", (1.5 * i, 0.0, 0.0)) for i in range(20)]
+    world, port = World(WorldSpec(models=robots, interval_sim=0.1, speedup=4.0), seed=1), free_port()
+    srv = LiveServer(sim_config(world, map_device=False), port=port, shared={WORLD_KEY: world})
+    before = len(os.listdir("/proc/self/task"))
+    srv.start()  # 82 devices, each with a cmd subscriber, an rpc queryable and a matching listener
+    try:
+        fab = fabric_factory(port)
+        fab.node("**").wait_for("**", count=2 + 20 * 4, timeout=30)
+        added = len(os.listdir("/proc/self/task")) - before
+        # the scheduler thread and the client fabric's few; a thread per callback would be 246
+        assert added < 40, added
+        # the callbacks on Zenoh's threads still answer: an rpc and a command of the last robot
+        pos = fab.device("r19:position2d:0")
+        assert pos.describe().interface == "position2d"
+        x0 = world.get_pose("r19")[0]
+        wait_until(lambda: (pos.set_velocity(0.3, 0.0), world.get_pose("r19")[0] > x0 + 0.05)[1], 10, "r19 to move")
+    finally:
+        srv.close()
