@@ -18,8 +18,13 @@ and the motors), ``motion`` (acceleration limits, odometry), ``energy`` (:mod:`s
 ``sensors`` (ray casting and the other sensors' steps), ``publish`` (the sim drivers' publications:
 encoding plus Zenoh puts, ``encode`` and ``put`` apart where measured), ``crowd`` (the crowd
 device's message: built and put), ``devices`` (the sim drivers' other per-device Python), ``server``
-(the scheduler and everything else on that thread) and ``zenoh_threads`` (the process's other
-threads: Zenoh's runtime sending the samples). ``--profile`` also prints cProfile's top functions.
+(the scheduler and everything else on that thread) and ``other_threads`` (the process's other
+threads), split from ``/proc`` by thread: ``raycast_threads`` (numba's workers casting the rays
+beside the scheduler thread: the ``sensors`` phase above is only the scheduler thread's part),
+``zenoh_runtime`` (Zenoh's named Rust threads, sending the samples) and ``callback_threads``
+(Zenoh's Python callback threads: one per subscriber, queryable and matching listener declared
+with a Python callback). ``--threads 1`` casts the rays on the scheduler thread alone.
+``--profile`` also prints cProfile's top functions.
 
 Output: one parseable line, ``bench=sim_cpu key=value ...``.
 Usage: ``python benchmarks/bench_sim_cpu.py [--world maps/swarm1000.world] [--sim-seconds 10]``
@@ -59,6 +64,42 @@ for line in sys.stdin:
     else:
         break
 """
+
+
+def thread_cpu() -> dict[int, tuple[str, float]]:
+    """CPU seconds of every thread of this process so far, by thread id: (name, seconds)."""
+    import os
+
+    tick = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{tid}/stat") as f:
+                stat = f.read()
+        except OSError:  # ended meanwhile
+            continue
+        name = stat[stat.index("(") + 1 : stat.rindex(")")]
+        fields = stat[stat.rindex(")") + 2 :].split()
+        out[int(tid)] = (name, (int(fields[11]) + int(fields[12])) / tick)  # utime + stime
+    return out
+
+
+def split_threads(before, after, main: int, raycast: set[int]) -> dict[str, float]:
+    """CPU seconds between two :func:`thread_cpu` snapshots of the threads besides ``main``:
+    the ray caster's workers (``raycast``: numba's pool), Zenoh's runtime (its threads have names:
+    ``app-0``, ``net-0``, ``rx-3``, ...) and the rest (Zenoh's Python callback threads)."""
+    got = {"raycast_threads": 0.0, "zenoh_runtime": 0.0, "callback_threads": 0.0}
+    for tid, (name, t1) in after.items():
+        if tid == main:
+            continue
+        dt = t1 - before.get(tid, (name, 0.0))[1]
+        if tid in raycast:
+            got["raycast_threads"] += dt
+        elif name != "python" and not name.startswith("python"):
+            got["zenoh_runtime"] += dt
+        else:
+            got["callback_threads"] += dt
+    return got
 
 
 class Meter:
@@ -127,6 +168,12 @@ def main() -> int:
     ap.add_argument("--no-phases", action="store_true", help="total CPU only (no timers around calls)")
     ap.add_argument("--profile", type=int, default=0, metavar="N", help="print cProfile's top N functions")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument(
+        "--threads",
+        type=int,
+        metavar="N",
+        help="the ray caster's threads, as rsal sim --threads (0 or 1: the stepping thread alone; default every core)",
+    )
     args = ap.parse_args()
 
     import numpy as np
@@ -141,7 +188,19 @@ def main() -> int:
 
     spec = load_world(args.world, seed=args.seed)
     spec.speedup = math.inf
+    if args.threads is not None:
+        spec.threads = max(1, args.threads)
     world = World(spec)
+    # numba's pool starts with the first parallel cast: start it now, before Zenoh's threads, so
+    # the threads that exist at this point besides this one are the ray caster's workers.
+    import threading
+
+    from simulator.raycast import cast_fans
+
+    one = {k: np.zeros(1) for k in ("x", "y", "th0", "dth", "rmax")}
+    cast_fans(None, {**one, "n": np.ones(1, dtype=np.int64), "owner": np.full(1, -1)})
+    main_tid = threading.get_native_id()
+    raycast_tids = set(thread_cpu()) - {main_tid}
     n = len(world.robot_names)
     if args.drive == "arcs":
         rng = np.random.default_rng(args.seed)
@@ -192,9 +251,12 @@ def main() -> int:
 
         prof = cProfile.Profile()
         prof.enable()
+    cpu0 = thread_cpu()
     t0, p0, th0, w0 = world.time, time.process_time(), time.thread_time(), time.perf_counter()
     run_until(args.warmup + args.sim_seconds)
     t1, p1, th1, w1 = world.time, time.process_time(), time.thread_time(), time.perf_counter()
+    cpu1 = thread_cpu()
+    others = split_threads(cpu0, cpu1, main_tid, raycast_tids)
     if prof:
         prof.disable()
     sim = t1 - t0
@@ -223,7 +285,9 @@ def main() -> int:
         "rtf": round(sim / (w1 - w0), 3),
         "cores_rt": round(total, 3),
         "main_thread": round(main_t, 3),
-        "zenoh_threads": round(total - main_t, 3),
+        "other_threads": round(total - main_t, 3),
+        **{k: round(v / (t1 - t0), 3) for k, v in others.items()},
+        "threads": len(cpu1),
         "published_per_sim_s": round(server.stats["published"] / max(world.time, 1e-9)),
         "published": server.stats["published"],
     }

@@ -217,6 +217,8 @@ def _sim(args: argparse.Namespace) -> int:
             spec.speedup = math.inf
         elif args.speedup is not None:
             spec.speedup = args.speedup
+        if args.threads is not None:
+            spec.threads = max(1, args.threads)
         world = World(spec)
     except SimulatorError as e:
         print(f"rsal sim: {e}", file=sys.stderr)
@@ -283,6 +285,16 @@ def _node_name(text: str) -> str:
     return text
 
 
+def _threads(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of threads >= 0 (0: none besides the stepping one)")
+    return n
+
+
 def register_serve(sub) -> None:
     p = sub.add_parser("serve", help="run a device server from a TOML driver configuration")
     p.add_argument("config_file", metavar="CONFIG", help="TOML file of [[driver]] blocks (see docs/configuration.md)")
@@ -304,6 +316,13 @@ def register_sim(sub) -> None:
     pace.add_argument("--speedup", type=positive, help="times real time (default: the world's)")
     pace.add_argument("--fast", action="store_true", help="as fast as possible")
     p.add_argument("--seed", type=int, help="random seed (default: the world's)")
+    p.add_argument(
+        "--threads",
+        type=_threads,
+        metavar="N",
+        help="threads for the ray casting, as Stage's 'threads' (0 or 1: the stepping thread alone, least CPU "
+        "in all; default: the world's, else every core)",
+    )
     p.add_argument("--no-map", action="store_true", help="do not serve the floorplan as NODE:map:0")
     p.add_argument(
         "--node",

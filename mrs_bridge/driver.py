@@ -9,7 +9,8 @@ or on another server. The server owns all Zenoh entities; a driver only implemen
 - ``ready()`` whether it can serve yet: its devices' tokens are declared after ``setup()``, the
   first ``update()`` and once ``ready()`` is true (a map still to arrive by rpc: not yet);
 - ``update(now)`` at ``rate`` Hz on the server's single scheduler (publish with ``publish``; data
-  nobody subscribes to is dropped, and ``listened(addr)`` tells before a costly message is built);
+  nobody subscribes to is dropped, and ``listened(addr)`` tells before a costly message is built,
+  ``listen_group(addrs).any`` for several devices at once);
 - ``on_cmd(addr, msg)`` for a decoded ``cmd``: the message class the driver declares in
   ``cmd_types`` (``"GoalCmd | VelocityCmd"``), else the interface's (:mod:`rsal.interfaces`), else
   the plain map; raise :class:`~rsal.msgs.MessageError` (or :class:`OutOfRange`) to reject it: the
@@ -156,6 +157,13 @@ class Driver:
         """Whether anyone subscribes to ``addr``'s ``data`` now (a cached flag): skip building a
         message nobody reads (``publish`` drops it anyway, but only after it was built)."""
         return self.server.listened(addr)
+
+    def listen_group(self, addrs):
+        """One flag for several of this driver's devices: the returned object's ``any`` is true
+        while someone subscribes to the ``data`` of at least one of them (kept up to date by the
+        server; read it once per update instead of :meth:`listened` per device). Call it once
+        the devices are declared (from ``update``, not ``__init__``)."""
+        return self.server.listen_group(addrs)
 
     def publish_each(self, addrs, msg) -> None:
         """Publish ``msg`` on each device of ``addrs``, encoded once (one scan on two devices)."""

@@ -287,6 +287,17 @@ class FakeServer:
     def listened(self, addr) -> bool:
         return str(addr) not in self.unheard
 
+    def listen_group(self, addrs):
+        """As the server's: ``any`` is true while one of ``addrs`` is not in :attr:`unheard`."""
+        server, names = self, [str(a) for a in addrs]
+
+        class _Group:
+            @property
+            def any(self) -> bool:
+                return any(n not in server.unheard for n in names)
+
+        return _Group()
+
     def send(self, addr, msg) -> None:
         self.sent.append((str(addr), msg))
 

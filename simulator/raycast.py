@@ -10,7 +10,8 @@ minus 1.5 cells is always safe) while far from walls, then an exact Amanatides-W
 ("A Fast Voxel Traversal Algorithm for Ray Tracing", 1987) near them, so hits land exactly on
 cell boundaries. Dynamic geometry: every body is a circle; circles are bucketed in a uniform
 hash grid, each fan gathers the circles within its range and tests only the rays inside each
-circle's angular extent, analytically. Fans run in parallel (``prange``).
+circle's angular extent, analytically. Fans run in parallel (``prange``) on every core, or on
+the ``threads`` a world asks for (Stage's ``threads``).
 
 A pure-numpy implementation of the same contract, :func:`cast_fans_numpy`, is the benchmark
 baseline and the reference the tests compare against.
@@ -324,6 +325,7 @@ def cast_fans(
     static: bool = True,
     seed: int = 0,
     step: int = 0,
+    threads: int | None = None,
 ) -> np.ndarray:
     """Cast every ray of every fan; returns one float64 range per ray, fans concatenated in order.
 
@@ -331,7 +333,8 @@ def cast_fans(
     equal-length arrays ``x, y, th0, dth, n, rmax, owner`` (owner = the circle owner id the fan
     ignores, -1 for none) and optionally ``noise`` (range noise std, m) and ``rmin``. A ray that
     hits nothing reads ``rmax``; hits get Gaussian noise drawn from ``(seed, step, ray index)``
-    and are clipped to ``[rmin, rmax]``.
+    and are clipped to ``[rmin, rmax]``. ``threads``: how many threads cast the fans (1: the
+    calling thread alone; None: numba's default, every core).
     """
     fx = np.ascontiguousarray(fans["x"], dtype=np.float64)
     n = np.ascontiguousarray(fans["n"], dtype=np.int64)
@@ -350,6 +353,18 @@ def cast_fans(
     else:
         occ, dist, res = grid.occupied, grid.distance, grid.resolution
         ox0, oy0 = grid.origin
+    if threads is not None:
+        # numba's thread count is per calling thread: set for this cast and put back after it.
+        prev = nb.get_num_threads()
+        nb.set_num_threads(max(1, min(int(threads), nb.config.NUMBA_NUM_THREADS)))
+        try:
+            return _cast(dist, occ, res, ox0, oy0, fx, n, offset, fans, circles, static, seed, step, out)
+        finally:
+            nb.set_num_threads(prev)
+    return _cast(dist, occ, res, ox0, oy0, fx, n, offset, fans, circles, static, seed, step, out)
+
+
+def _cast(dist, occ, res, ox0, oy0, fx, n, offset, fans, circles, static, seed, step, out) -> np.ndarray:
     _cast_fans(
         dist,
         occ,

@@ -237,6 +237,9 @@ class WorldSpec:
     seed: int = 0
     quit_time: float = 0.0  # s of simulated time after which a run stops (Stage ``quit_time``); 0: never
     resolution: float = 0.02  # m, the static map's collision and raytrace grid (Stage ``resolution``)
+    #: threads the ray casting runs on (Stage ``threads``: 0 or 1 the stepping thread alone); None: every core.
+    #: Parallel casting finishes a step sooner but costs more CPU in all (docs/benchmarks.md, "Crowd").
+    threads: int | None = None
     source: str = ""  # path of the file this came from
     warnings: list[str] = field(default_factory=list)  # "file:line: ..." messages from parsing
 

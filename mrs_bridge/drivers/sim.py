@@ -26,7 +26,8 @@ A simulator server calls every robot's ``sim`` driver after each step (1000 robo
 every 100 ms), so :meth:`SimDriver.on_step` stays lean: its publications are planned once
 (:meth:`SimDriver._plan`), a ranger's scan is converted and encoded once for all the devices that
 show it (``ranger:0`` and its alias ``sonar:0``, ``DeviceServer.publish_each``), a device nobody
-subscribes to gets no message built (``Driver.listened``), and the battery
+subscribes to gets no message built (``Driver.listened``), a robot none of whose data devices is
+listened to is passed over with one flag (``Driver.listen_group``), and the battery
 state is built only when a power report is due or the low-battery latch changes
 (docs/benchmarks.md, "Simulator server CPU at 1000 sonar robots"). The module is a little over
 500 lines because both drivers share the one world binding and its error handling.
@@ -285,6 +286,11 @@ def robot_devices(spec) -> list[tuple[str, int]]:
     return [("position2d", 0), *player_devices(spec), ("power", 0)]
 
 
+#: Interfaces whose data :meth:`SimDriver.on_step` builds only while someone listens; the others
+#: (gripper, fiducial, power) carry events or latches and run every step.
+_HEARD_ONLY = frozenset({"position2d", "ranger", "blobfinder", "bumper"})
+
+
 @register("sim", "stage")
 class SimDriver(Driver):
     interfaces = ("position2d", "ranger", "sonar", "laser", "blobfinder", "gripper", "bumper", "fiducial", "power")
@@ -345,6 +351,8 @@ class SimDriver(Driver):
                 raise ConfigError(f"{cfg.where}: model {self.model!r} has no {a.interface}:{i}; add one in the world")
         self._last_scan: dict[int, float] = {}  # ranger index -> sim time of the scan last sent
         self._publish_plan: list[tuple[str, Any]] | None = None  # built on the first step (_plan)
+        self._always_plan: list[tuple[str, Any]] = []  # what is sent even unheard (events ride on it)
+        self._heard = None  # ListenGroup of the devices only sent while someone listens (_plan)
         self._last_grip: dict[DeviceAddr, tuple] = {}
         self._last_contact: dict[DeviceAddr, float] = {}  # sim time of the bumper/fiducial data last sent
         if p.battery_percent is not None:
@@ -395,7 +403,22 @@ class SimDriver(Driver):
         t = w.time
         plan = self._publish_plan
         if plan is None:
-            plan = self._publish_plan = self._plan()
+            full = self._plan()
+            plan = self._publish_plan = [e for e in full if e[0] in _HEARD_ONLY]
+            self._always_plan = [e for e in full if e[0] not in _HEARD_ONLY]
+            self._heard = self.listen_group([a for i, e in plan for a in (e[1] if i == "ranger" else [e])])
+        if self._heard.any:  # one flag for the robot: a crowd nobody reads robot by robot costs nothing here
+            self._publish_heard(w, t, plan)
+        for iface, a in self._always_plan:
+            if iface == "gripper":
+                self._publish_gripper(w, a, t)
+            elif iface == "fiducial":
+                self._publish_fiducial(w, a)
+            elif iface == "power":
+                self._publish_power(w, a, t)
+
+    def _publish_heard(self, w, t: float, plan) -> None:
+        """The devices whose data is only built while someone listens, each asked on its own."""
         heard = self.server.listened
         for iface, a in plan:
             if iface == "position2d":
@@ -419,16 +442,6 @@ class SimDriver(Driver):
                     continue
                 blobs = w.blobfinder(self.model, a.index)
                 self.publish(a, simmsgs.blobfinder_data(t, self.spec.blobfinders[a.index], blobs))
-            elif iface == "gripper":
-                st = w.gripper(self.model, a.index)
-                self.publish(a, simmsgs.gripper_data(t, st))
-                prev = self._last_grip.get(a)
-                now_state = (st.paddles, st.lift, st.carrying)
-                if prev is not None and prev != now_state:
-                    self.event(
-                        a, {"t": t, "event": "state", "paddles": st.paddles, "lift": st.lift, "carrying": st.carrying}
-                    )
-                self._last_grip[a] = now_state
             elif iface == "bumper":
                 if not heard(a):
                     continue
@@ -437,10 +450,16 @@ class SimDriver(Driver):
                     continue
                 self._last_contact[a] = b.time
                 self.publish(a, simmsgs.bumper_data(b))
-            elif iface == "fiducial":
-                self._publish_fiducial(w, a)
-            elif iface == "power":
-                self._publish_power(w, a, t)
+
+    def _publish_gripper(self, w, a: DeviceAddr, t: float) -> None:
+        """The gripper's state every step, and an event when it changes (heard or not)."""
+        st = w.gripper(self.model, a.index)
+        self.publish(a, simmsgs.gripper_data(t, st))
+        prev = self._last_grip.get(a)
+        now_state = (st.paddles, st.lift, st.carrying)
+        if prev is not None and prev != now_state:
+            self.event(a, {"t": t, "event": "state", "paddles": st.paddles, "lift": st.lift, "carrying": st.carrying})
+        self._last_grip[a] = now_state
 
     def _publish_power(self, w, a: DeviceAddr, t: float) -> None:
         """The battery once per simulated second (and at once when it turns low or recovers)."""

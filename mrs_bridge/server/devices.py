@@ -7,13 +7,18 @@ first ``update()`` ("ready means ready", :meth:`_Devices._announce`); :meth:`_De
 withdraws and returns the tokens of hardware that stops answering. Outbound: ``publish`` (the
 hot path), ``publish_event``, and ``send``/``request`` to other devices, local or remote.
 
+The per-device callbacks (``cmd``, ``rpc``, matching) run on Zenoh's network threads
+(:func:`_direct`), not on a Python thread each.
+
 A device's ``data`` is published only while someone listens: each data publisher has a Zenoh
 matching listener that keeps :attr:`_Device.listened` (a plain bool, read on the hot path) up to
 date, ``publish`` drops a message nobody subscribes to before encoding it, and drivers ask
 :meth:`_Devices.listened` before they build an expensive message (a simulator serving 1000 robots
 to a host that reads them all through the ``crowd`` device builds no per-robot samples;
 docs/benchmarks.md, "Crowd"). A subscriber declared later gets data from the first step after
-its interest reaches the server (Zenoh's matching status); events and rpcs are unchanged.
+its interest reaches the server (Zenoh's matching status); events and rpcs are unchanged. A
+driver with many devices keeps a :class:`ListenGroup` (:meth:`_Devices.listen_group`): one flag,
+kept by the same listeners, that tells whether any of them is listened to.
 
 :class:`_Devices` is a mixin of :class:`~mrs_bridge.server.DeviceServer`: it uses the server's
 ``session``, ``slots``, ``devices``, ``inbox``, ``stats``, ``_pub_cache`` and ``_on_sample``/``_on_query``.
@@ -21,7 +26,8 @@ its interest reaches the server (Zenoh's matching status); events and rpcs are u
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import threading
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import zenoh
@@ -39,6 +45,35 @@ if TYPE_CHECKING:
     from .core import _Slot
 
 
+#: Zenoh calls each matching listener on a thread of its own: the flags of a :class:`ListenGroup`
+#: are recomputed under this lock, so two devices of one group changing at once leave it right.
+_MATCH_LOCK = threading.Lock()
+
+
+def _direct(fn):
+    """``fn`` as a callback run on Zenoh's own network thread. zenoh-python otherwise starts a
+    Python thread per callback: three per device (``cmd``, ``rpc``, matching), 12,000 threads for
+    a simulator of 1000 robots, which then failed to start with "can't start new thread" on a
+    machine whose other processes held threads too. Every callback here only checks, stores and
+    hands over (the inbox, a bool) and never blocks (a full inbox's busy reply does not wait)."""
+    return zenoh.handlers.Callback(fn, indirect=False)
+
+
+class ListenGroup:
+    """Whether anyone listens to any of several devices' ``data`` (:attr:`any`, a plain bool kept
+    by their matching listeners): a driver serving many devices reads one flag per step instead of
+    asking device by device (a simulator's 1000 robots nobody reads are skipped whole)."""
+
+    __slots__ = ("devices", "any")
+
+    def __init__(self, devices: list[_Device]):
+        self.devices = devices
+        self.any = False
+
+    def refresh(self) -> None:  # under _MATCH_LOCK
+        self.any = any(d.listened for d in self.devices)
+
+
 @dataclass
 class _Device:
     addr: DeviceAddr
@@ -51,9 +86,13 @@ class _Device:
     cmd_kinds: tuple | None = None  # message classes its cmd decodes to (None: not looked up yet)
     matcher: Any = None  # the data publisher's matching listener
     listened: bool = True  # a subscriber matches ``data`` (kept by ``matcher``; True until it reports)
+    groups: list[ListenGroup] = field(default_factory=list)  # the listen groups this device is in
 
-    def _on_match(self, status) -> None:  # Zenoh's thread: one attribute write, no zenoh call
-        self.listened = bool(status.matching)
+    def _on_match(self, status) -> None:  # Zenoh's thread: attribute writes, no zenoh call
+        with _MATCH_LOCK:
+            self.listened = bool(status.matching)
+            for g in self.groups:
+                g.refresh()
 
     def undeclare(self) -> None:
         for name in ("matcher", "cmd_sub", "rpc_q", "pub", "event_pub", "token"):
@@ -96,7 +135,7 @@ class _Devices:
         dev.pub = s.declare_publisher(keys.data_key(addr))
         # Data only while someone listens: the listener keeps a bool the hot path reads; the status
         # is read once after declaring it, so a subscriber that existed before is not missed.
-        dev.matcher = dev.pub.declare_matching_listener(dev._on_match)
+        dev.matcher = dev.pub.declare_matching_listener(_direct(dev._on_match))
         st = dev.pub.matching_status  # a MatchingStatus (zenoh 1.10; its stub says bool)
         dev.listened = bool(getattr(st, "matching", st))
         # Reliable, but never blocking: the scheduler publishes, and a peer that reads slowly must
@@ -108,9 +147,11 @@ class _Devices:
             congestion_control=zenoh.CongestionControl.DROP,
         )
         dev.cmd_sub = s.declare_subscriber(
-            keys.cmd_key(addr), lambda smp, a=addr: self._on_sample(("cmd", a), smp.payload, MAX_PAYLOAD)
+            keys.cmd_key(addr), _direct(lambda smp, a=addr: self._on_sample(("cmd", a), smp.payload, MAX_PAYLOAD))
         )
-        dev.rpc_q = s.declare_queryable(f"{keys.PREFIX}/{addr.path}/rpc/*", lambda q, a=addr: self._on_query(a, q))
+        dev.rpc_q = s.declare_queryable(
+            f"{keys.PREFIX}/{addr.path}/rpc/*", _direct(lambda q, a=addr: self._on_query(a, q))
+        )
         self.devices[addr] = dev
         self._pub_cache.clear()
 
@@ -153,6 +194,21 @@ class _Devices:
                 return False
             hit = self._pub_cache[id(addr)] = (addr, dev.pub.put, dev)
         return hit[2].listened
+
+    def listen_group(self, addrs) -> ListenGroup:
+        """A :class:`ListenGroup` over the declared devices of ``addrs``: its ``any`` is true while
+        someone subscribes to the ``data`` of at least one of them. Scheduler thread."""
+        devs = []
+        for addr in addrs:
+            dev = self.devices.get(addr.without_key() if addr.key else addr)
+            if dev is not None and dev.pub is not None and all(dev is not d for d in devs):
+                devs.append(dev)
+        group = ListenGroup(devs)
+        with _MATCH_LOCK:
+            for dev in devs:
+                dev.groups.append(group)
+            group.refresh()
+        return group
 
     def publish_each(self, addrs, msg) -> None:
         """Publish one message on several devices, encoded once: a sonar ring's scan on

@@ -114,7 +114,7 @@ class Blobfinders(Sensor):
             "rmax": rng_[idx],
             "owner": np.full(idx.size, m.uid, dtype=np.int64),
         }
-        hit = cast_fans(self.world.grid, fans, circles)
+        hit = cast_fans(self.world.grid, fans, circles, threads=self.world.spec.threads)
         w_px, h_px = spec.image
         fov = spec.fov
         vfov = fov * h_px / w_px

@@ -102,7 +102,7 @@ class Bumpers(ReadingSensor):
                 "rmax": length,
                 "owner": owner,
             }
-            pressed |= cast_fans(w.grid, fans) < length
+            pressed |= cast_fans(w.grid, fans, threads=w.spec.threads) < length
         pressed |= self._touch_bodies(p0, p1, owner, length)
         out = pressed.astype(np.uint8)
         out.flags.writeable = False

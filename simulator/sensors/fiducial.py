@@ -115,7 +115,7 @@ class Fiducials(Sensor):
             "rmax": rng_[fi, cj],
             "owner": np.array([finders[k].model.uid for k in fi], dtype=np.int64),
         }
-        hit = cast_fans(w.grid, fans, w.circles())
+        hit = cast_fans(w.grid, fans, w.circles(), threads=w.spec.threads)
         visible = hit >= rng_[fi, cj] - self._rad[cj] - _OCCLUSION_MARGIN
         for k, j in zip(fi[visible], cj[visible], strict=True):
             f, m = finders[k], marked[j]

@@ -109,5 +109,5 @@ NOT_SIMULATED_KEYS: dict[str, frozenset[str]] = {
     "fiducial": frozenset({"fiducial_return", "watts"}),
 }  # fmt: skip
 """Known keywords without a simulated meaning yet, by scope. Keywords that only change the GUI
-(``gui_*``, ``say``, ``debug``, ``show_clock``, a device's ``size``/``color``) and ``threads`` (the
-simulator parallelises by vectorising, not by threads) are accepted silently."""
+(``gui_*``, ``say``, ``debug``, ``show_clock``, a device's ``size``/``color``) are accepted silently.
+``threads`` sets the ray caster's threads (:attr:`~simulator.spec.WorldSpec.threads`)."""

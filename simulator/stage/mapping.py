@@ -170,7 +170,9 @@ class Mapper(DeviceMapping):
             check(num(p, need, example) >= 0, p, need, example)
         self.scope_not_simulated(wp, NOT_SIMULATED_KEYS["world"])
         if (p := wp.get("threads")) is not None:
-            integer(p, "an integer", "threads 1")
+            v = integer(p, "a number of threads >= 0 (0: none besides the stepping thread)", "threads 1")
+            check(v >= 0, p, "a number of threads >= 0 (0: none besides the stepping thread)", "threads 1")
+            spec.threads = max(1, v)
         for key in ("paused", "show_clock"):
             if (p := wp.get(key)) is not None:
                 boolean(p)

@@ -10,7 +10,10 @@ sonars; r1 reports ground truth, ``localization = "gps"``) and a Pioneer 3AT (16
   stops when crowd commands stop (command timeout), a latched emergency stop refuses its row;
   malformed commands are warned about, and the server serves on;
 - a device's ``data`` is built and put only while a subscriber matches it: none is built without
-  one, and a subscriber declared later receives data.
+  one, and a subscriber declared later receives data; a robot none of whose data devices is read
+  is passed over by one flag (its battery still reports);
+- declaring devices starts no thread per device (their callbacks run on Zenoh's threads), and
+  their rpcs and commands still work.
 """
 
 from __future__ import annotations
@@ -230,3 +233,52 @@ def test_crowd_layout_and_messages_round_trip():
     c = CrowdCmd(np.int32([1, 0]), np.float64([0.1, 0.2]), np.float64([0.0, -0.1]))
     back = CrowdCmd.from_bytes(c.to_msgpack())
     assert back.idx.tolist() == [1, 0] and back.v.tolist() == [0.1, 0.2] and back.w.tolist() == [0.0, -0.1]
+
+
+def test_a_robot_nobody_reads_is_passed_over_by_one_flag_and_its_battery_still_reports(sim, client):
+    from mrs_bridge.drivers.sim import SimDriver
+
+    drv = {d.model: d for d in sim.server.drivers_of(SimDriver)}
+    wait_until(lambda: all(d._heard is not None for d in drv.values()), 10, "the robots' first step")
+    assert not any(d._heard.any for d in drv.values())
+    got_p, _, sub_p = _collector(client.session, "rsal/r0/position2d/0/data")
+    got_s, _, sub_s = _collector(client.session, "rsal/r0/sonar/0/data")
+    got_b, _, sub_b = _collector(client.session, "rsal/r1/power/0/data")  # outside the flag: every step
+    try:
+        wait_until(lambda: len(got_p) >= 2 and len(got_s) >= 2, 10, "r0's pose and scans")
+        assert drv["r0"]._heard.any and not drv["r1"]._heard.any and not drv["r2"]._heard.any
+        wait_until(lambda: len(got_b) >= 1, 10, "r1's battery report (once per simulated second)")
+        sub_p.undeclare()
+        sub_p = None
+        wait_until(lambda: not sim.server.devices[DeviceAddr("r0", "position2d", 0)].listened, 5, "the match to end")
+        assert drv["r0"]._heard.any  # its sonar is still read
+        n = len(got_s)
+        wait_until(lambda: len(got_s) >= n + 2, 10, "scans after the pose's reader left")
+    finally:
+        for sub in (sub_p, sub_s, sub_b):
+            if sub is not None:
+                sub.undeclare()
+    wait_until(lambda: not drv["r0"]._heard.any, 5, "r0's flag to drop with its last reader")
+
+
+def test_declaring_devices_starts_no_thread_per_device(fabric_factory):
+    import os
+
+    robots = [pioneer2dx(f"r{i}", (1.5 * i, 0.0, 0.0)) for i in range(20)]
+    world, port = World(WorldSpec(models=robots, interval_sim=0.1, speedup=4.0), seed=1), free_port()
+    srv = LiveServer(sim_config(world, map_device=False), port=port, shared={WORLD_KEY: world})
+    before = len(os.listdir("/proc/self/task"))
+    srv.start()  # 82 devices, each with a cmd subscriber, an rpc queryable and a matching listener
+    try:
+        fab = fabric_factory(port)
+        fab.node("**").wait_for("**", count=2 + 20 * 4, timeout=30)
+        added = len(os.listdir("/proc/self/task")) - before
+        # the scheduler thread and the client fabric's few; a thread per callback would be 246
+        assert added < 40, added
+        # the callbacks on Zenoh's threads still answer: an rpc and a command of the last robot
+        pos = fab.device("r19:position2d:0")
+        assert pos.describe().interface == "position2d"
+        x0 = world.get_pose("r19")[0]
+        wait_until(lambda: (pos.set_velocity(0.3, 0.0), world.get_pose("r19")[0] > x0 + 0.05)[1], 10, "r19 to move")
+    finally:
+        srv.close()

@@ -113,3 +113,27 @@ def test_circle_index_finds_circles_spanning_many_cells():
     circles = CircleIndex(np.array([0.0, 30.0]), np.array([0.0, 0.0]), np.array([3.0, 0.5]), np.array([1, 2]), cell=1.0)
     out = cast_fans(None, fan(-10.0, 2.5, 0.0, rmax=50.0), circles)
     assert out[0] == pytest.approx(10.0 - math.sqrt(9 - 2.5**2), abs=1e-9)
+
+
+def test_one_thread_casts_the_same_ranges_as_every_core_and_restores_the_count():
+    import numba
+
+    g = room()
+    rng = np.random.default_rng(5)
+    k = 40
+    fans = {
+        "x": rng.uniform(-4.5, -0.5, k),
+        "y": rng.uniform(-3.5, 3.5, k),
+        "th0": rng.uniform(-math.pi, math.pi, k),
+        "dth": np.full(k, math.radians(15) / 4),
+        "n": np.full(k, 5),
+        "rmax": np.full(k, 5.0),
+        "owner": np.arange(k),
+        "noise": np.full(k, 0.01),
+    }
+    circles = CircleIndex(fans["x"], fans["y"], np.full(k, 0.2), np.arange(k))
+    before = numba.get_num_threads()
+    every = cast_fans(g, fans, circles, seed=3, step=7)
+    one = cast_fans(g, fans, circles, seed=3, step=7, threads=1)
+    assert numba.get_num_threads() == before
+    np.testing.assert_array_equal(one, every)  # noise depends on (seed, step, ray), not the thread

@@ -216,6 +216,15 @@ def test_seed(tmp_path):
     assert load_stage_world(p, seed=7).seed == 7
 
 
+def test_threads_sets_the_ray_casting_threads_as_stage_counts_them(tmp_path):
+    # Stage: ``threads N`` worker threads, 0 none (the stepping thread alone); absent: every core here.
+    assert load_stage_world(write(tmp_path / "a.world", 'name "a"\n')).threads is None
+    assert load_stage_world(write(tmp_path / "b.world", "threads 0\n")).threads == 1
+    assert load_stage_world(write(tmp_path / "c.world", "threads 3\n")).threads == 3
+    with pytest.raises(WorldFileError, match=r"d\.world:1.*threads 1"):
+        load_stage_world(write(tmp_path / "d.world", "threads -2\n"))
+
+
 def test_known_stage_keywords_are_silent(tmp_path):
     p = write(
         tmp_path / "w.world",
