@@ -161,7 +161,9 @@ class Rangers(ReadingSensor):
             "rmin": f["rmin"][idx],
         }
         # Noise and clipping happen inside the compiled caster (deterministic per seed and step).
-        ranges = cast_fans(w.grid, fans, w.circles(), seed=w.seed, step=w.steps, threads=w.spec.threads).astype(np.float32)
+        ranges = cast_fans(w.grid, fans, w.circles(), seed=w.seed, step=w.steps, threads=w.spec.threads).astype(
+            np.float32
+        )
         if all_due:
             out = ranges
         else:
