@@ -253,6 +253,8 @@ class Runner:
             flags += ["--speedup", f"{speedup:g}"]
         if s.seed is not None:
             flags += ["--seed", str(s.seed)]
+        if s.threads is not None:
+            flags += ["--threads", str(s.threads)]
         argv = [sys.executable, "-m", "rsal.cli", "sim", str(s.world), *flags]
         self._start("sim", "sim", argv, " ".join(["rsal sim", _rel(s.world), *flags]))
 

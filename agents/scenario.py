@@ -63,7 +63,7 @@ DEFAULT_TIMEOUT = 300.0
 
 _TOP = ("scenario", "description", "arguments", "agent_types", "applications")
 _APP = ("description", "simulator", "rehearse", "servers", "agents", "end")
-_SIM = ("world", "nav", "nav_robots", "nav_servers", "speedup", "seed")
+_SIM = ("world", "nav", "nav_robots", "nav_servers", "speedup", "seed", "threads")
 _REHEARSE = ("world", "robot", "nav", "pioneer", "laser", "node", "seed")
 _PIONEERS = ("P2DX", "P3AT")  # mrs_bridge.emulators.p2os.DIST_CONV
 _LASERS = ("URG-04LX", "UTM-30LX")  # mrs_bridge.emulators.urg.SENSORS
@@ -87,6 +87,8 @@ class SimulatorSpec:
     seed: int | None = None
     #: navigation stacks in this many extra servers (``rsal sim .. --nav-part I/N``), 0: in the simulator's
     nav_servers: int = 0
+    #: the ray caster's threads (``rsal sim --threads``; 0 or 1: the stepping thread alone), None: the world's
+    threads: int | None = None
 
 
 @dataclass(frozen=True)
@@ -385,7 +387,8 @@ def _simulator(c: _Ctx, where: str, raw: Any) -> SimulatorSpec:
     servers = 0 if m.get("nav_servers") is None else c.whole(m["nav_servers"], f"{where}.nav_servers", lo=0)
     if servers and nav is None:
         raise c.fail(f"{where}.nav_servers", "needs 'nav' (vfh, nd or snd): the servers run navigation stacks")
-    return SimulatorSpec(world, nav, tuple(robots), speedup, seed, servers)
+    threads = None if m.get("threads") is None else c.whole(m["threads"], f"{where}.threads", lo=0)
+    return SimulatorSpec(world, nav, tuple(robots), speedup, seed, servers, threads)
 
 
 def _rehearse(c: _Ctx, where: str, raw: Any, sim: SimulatorSpec | None) -> RehearsalSpec:

@@ -385,14 +385,15 @@ def test_a_forged_outcome_from_a_stranger_changes_nothing(procs, tmp_path):
 
 
 def test_nav_servers_run_the_stacks_beside_the_simulator_and_are_stopped(procs, tmp_path):
-    # simulator.nav_servers: 1 -> rsal sim .. --nav-servers 1 and one rsal sim .. --nav-part 0/1 server;
+    # simulator.nav_servers: 1 -> rsal sim .. --nav-servers 1 and one rsal sim .. --nav-part 0/1 server
+    # (threads: 1 -> the simulator's --threads 1);
     # the run ends (ok) once r0's planner, served by that server, is on the fabric: the reporter waits
     # for its token
     path = scenario(
         tmp_path,
         f"""
         nav:
-          simulator: {{world: {MAPS / "testroom.world"}, nav: vfh, nav_servers: 1}}
+          simulator: {{world: {MAPS / "testroom.world"}, nav: vfh, nav_servers: 1, threads: 1}}
           agents:
             - {{type: rep, id: rep, args: {{event: ready, subjects: [r0], after: "r0:planner:0"}}}}
           end: {{event: ready, count: 1, timeout: 120}}
@@ -402,7 +403,7 @@ def test_nav_servers_run_the_stacks_beside_the_simulator_and_are_stopped(procs, 
     wait_until(lambda: "[run] agent rep is up" in p.output() or not p.alive(), 120, "the agent up", interval=0.1)
     pids = {name: int(pid) for name, pid in re.findall(r"\[run\] started (\S+) \(pid (\d+)\)", p.output())}
     assert set(pids) == {"sim", "nav0", "rep"}, p.output()
-    assert re.search(r"rsal sim \S*testroom.world --listen \S+ --nav vfh --nav-servers 1", p.output())
+    assert re.search(r"rsal sim \S*testroom.world --listen \S+ --nav vfh --nav-servers 1 --threads 1", p.output())
     # the stack's server joins the fabric, requires r0's devices and the map, and serves r0's stack
     up = "wavefront r0: providing r0:planner:0"
     wait_until(lambda: up in p.output() or not p.alive(), 60, "the nav server's planner up", interval=0.1)

@@ -37,7 +37,7 @@ agent_types:
 applications:
   virtual:
     description: all simulated
-    simulator: {world: WORLD, nav: vfh, nav_robots: [r0], speedup: 2}
+    simulator: {world: WORLD, nav: vfh, nav_robots: [r0], speedup: 2, threads: 1}
     agents:
       - {type: prey, robot: r0}
       - {type: hunter, robot: "r{i}", count: 3, id: "hunter{i}", host: hunters}
@@ -72,6 +72,7 @@ def test_good_file_loads_into_dataclasses(tmp_path):
     app = sc.applications["virtual"]
     assert app.simulator.world == (MAPS / "testroom.world").resolve()
     assert app.simulator.nav == "vfh" and app.simulator.nav_robots == ("r0",) and app.simulator.speedup == 2
+    assert app.simulator.threads == 1
     ids = [a.id for a in app.agents]
     assert ids == ["prey-r0", "hunter0", "hunter1", "hunter2", "reporter0", "reporter1"]
     assert [a.robot for a in app.agents[1:4]] == ["r0", "r1", "r2"]
@@ -291,6 +292,7 @@ MISTAKES = [
     ),
     _row(G, "timeout: 60", "timeout: soon", "end.timeout: must be a number", id="type-timeout"),
     _row(G, "speedup: 2", "speedup: -1", "simulator.speedup: must be a positive number", id="type-speedup"),
+    _row(G, "threads: 1", "threads: -1", "simulator.threads: must be at least 0", id="type-threads"),
     _row(G, "nav: vfh", "nav: astar", "unknown local planner 'astar'; use one of vfh, nd, snd", id="type-nav"),
     # unknown agent type
     _row(
