@@ -198,8 +198,8 @@ class SwarmAgent(RobotAgent):
         self.broadcasting = True
         #: sender id -> [first sequence seen, last sequence seen, messages received]
         self.senders: dict[str, list[int]] = {}
-        self.latency = LatencyHistogram()
-        self.received = 0
+        self._latency = LatencyHistogram()
+        self._received = 0
         self.unnumbered = 0  # send_position messages without a sequence number (other agents)
         self._hub: RobotHub | None = None
         self._next_stats = 0.0
@@ -216,8 +216,8 @@ class SwarmAgent(RobotAgent):
         self._account(msg.sender, sequence(msg.conversation), latency_bin(lat), lat)
 
     def _account(self, sender: str, seq: int | None, lat_bin: int, lat: float) -> None:
-        self.received += 1
-        self.latency.add_bin(lat_bin, lat)
+        self._received += 1
+        self._latency.add_bin(lat_bin, lat)
         if seq is None:
             self.unnumbered += 1
             return
@@ -234,15 +234,44 @@ class SwarmAgent(RobotAgent):
             s[0] = seq
         s[2] += 1
 
-    def take(self, keys: np.ndarray, bins: np.ndarray, lat: np.ndarray) -> None:
-        """Account a batch of neighbourhood messages (:meth:`.ledger.NearLedger.flush`)."""
-        self.got.add_keys(keys)
-        self.received += len(keys)
-        self.latency.add_many(bins, lat)
+    def join_ledger(self, ledger: NearLedger) -> None:
+        """Have ``ledger`` (its hub's) account the neighbourhood messages owed to this agent."""
+        self._ledger = ledger
+        ledger.join(self)
+
+    def _settle(self) -> None:
+        """Take what the hub's ledger accounted for this agent since it last asked (its keys, its
+        latency histogram's row, its count): the per-agent split happens only here, when the
+        agent's figures are read, not at every flush."""
+        t = self._ledger.take(self) if self._ledger is not None else None
+        if t is None or not t.n:
+            return
+        for k in t.keys:
+            self.got.add_keys(k)
+        self._received += t.n
+        self._latency.add_counts(t.counts, t.max_s, t.sum_s)
+
+    @property
+    def received(self) -> int:
+        """Messages received (accounted), its own not counted."""
+        self._settle()
+        return self._received
+
+    @property
+    def latency(self) -> LatencyHistogram:
+        """The latency histogram of the messages received."""
+        self._settle()
+        return self._latency
+
+    @latency.setter
+    def latency(self, hist: LatencyHistogram) -> None:  # e.g. a benchmark's fresh one for its window
+        self._settle()
+        self._latency = hist
 
     @property
     def ranges(self) -> dict[str, list[int]]:
         """Neighbourhood: sender id -> the sequence numbers received, flat ``[first0, last0, ...]``."""
+        self._settle()
         return self.got.ranges()
 
     @property
@@ -321,9 +350,10 @@ class SwarmAgent(RobotAgent):
         self._hub = RobotHub.attach(self._require_host(), self, period=self.period, board_timeout=self.board_timeout)
         try:
             if self.neighbourhood:
-                self._ledger, self._headings = _near_hooks(self._hub)
+                ledger, self._headings = _near_hooks(self._hub)
+                self.join_ledger(ledger)
                 self._hub.listen_near(
-                    self.neighbourhood, self.cell_size, self.margin, self.report_every, self._ledger.on_message
+                    self.neighbourhood, self.cell_size, self.margin, self.report_every, ledger.on_message
                 )
             elif self.shared:
                 self._hub.listen(_account_shared)
@@ -466,6 +496,10 @@ class SwarmAgent(RobotAgent):
 
     async def killed(self) -> None:
         hub, self._hub = self._hub, None
+        if self._ledger is not None:
+            self._settle()  # its figures stay readable
+            self._ledger.leave(self)
+            self._ledger = None
         if hub is None:
             return
         robot = hub.remove_robot(self.robot)
