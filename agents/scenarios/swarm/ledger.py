@@ -169,6 +169,7 @@ class NearLedger:
             self._agents[i] = None
             self._parked.pop(i, None)
             self._counts[i] = 0
+            self._max[i] = self._sum[i] = 0.0
             self._n[i] = 0
 
     def take(self, agent: object) -> Taken | None:
@@ -236,8 +237,19 @@ class NearLedger:
         self._batch(keys, bins, lat, order, start, end, np.asarray(pa, dtype=np.int64), np.asarray(pc, dtype=np.int64))
         self.flushed_at = now
 
-    def _batch(self, keys, bins, lat, order, start, end, pa, pc) -> None:  # noqa: ANN001 (arrays)
-        """Expand the (agent, cell) pairs into (agent, message) pairs, receiver-major, and count them."""
+    def _batch(
+        self,
+        keys: np.ndarray,
+        bins: np.ndarray,
+        lat: np.ndarray,
+        order: np.ndarray,
+        start: np.ndarray,
+        end: np.ndarray,
+        pa: np.ndarray,
+        pc: np.ndarray,
+    ) -> None:
+        """Expand the (agent index ``pa``, cell ``pc``) pairs into (agent, message) pairs,
+        receiver-major (``order[start[j]:end[j]]`` are cell j's messages), and count them."""
         na = len(self._agents)
         o = np.argsort(pa, kind="stable")
         pa, pc = pa[o], pc[o]
