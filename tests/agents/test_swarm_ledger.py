@@ -144,7 +144,9 @@ def test_flush_of_five_hundred_agents_costs_no_call_per_agent():
     for rep in range(5):
         for i, (x, y) in enumerate(rng.uniform(0, 50, (1000, 2))):
             s = f"k{i % 500}"
-            ledger.on_message(hub, Message("send_position", s, f"p{2 * rep + i // 500}", now - 0.01, SendPosition(s, x, y, 0.0)), now)
+            ledger.on_message(
+                hub, Message("send_position", s, f"p{2 * rep + i // 500}", now - 0.01, SendPosition(s, x, y, 0.0)), now
+            )
         t0 = time.process_time()
         ledger.flush()
         best = min(best, time.process_time() - t0)
