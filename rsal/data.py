@@ -59,6 +59,8 @@ def normalize_angle(a: float) -> float:
 
 def _finite(value: object, what: str) -> float:
     """``value`` as a float, or ValueError naming it and ``what`` it was meant to be."""
+    if type(value) is float and math.isfinite(value):  # the common case, without the ABC check
+        return value
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ValueError(f"{what} must be a finite number, got {value!r}")
     v = float(value)
@@ -80,6 +82,9 @@ class Position:
     yaw: float = 0.0
 
     def __post_init__(self) -> None:
+        x, y, yaw = self.x, self.y, self.yaw
+        if type(x) is float and type(y) is float and type(yaw) is float and math.isfinite(x + y + yaw):
+            return  # already finite floats (every decoded pose): nothing to convert
         for name in ("x", "y", "yaw"):
             object.__setattr__(self, name, _finite(getattr(self, name), f"Position.{name}"))
 

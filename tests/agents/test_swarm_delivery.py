@@ -167,6 +167,8 @@ def test_ledger_hands_each_agent_the_messages_of_its_cells_in_one_batch():
     by_cell = {c_left: [a0, a1], c_right: [a1]}
     hub = SimpleNamespace(cell_size=2.0, agents_in=lambda c: by_cell.get(c, []))
     ledger = NearLedger(hub)
+    a0.join_ledger(ledger)
+    a1.join_ledger(ledger)
     now = time.time()
 
     def put(sender: str, seq: int, x: float) -> None:

@@ -231,7 +231,7 @@ def test_ten_pioneer_3ats_with_full_stacks_swarm_and_are_judged_on_ground_truth(
     # by the simulator in every physics step).
     assert mon.contact_counts() == (0, 0), f"contacts during the run: {v.text}"
     # Its second half: AMCL on the sonar ring keeps the localization error under 0.5 m for 95 % of
-    # robot-time (issue's verdict; docs/scenarios/swarm.md), judged against the true poses.
+    # robot-time (the scenario's verdict; docs/scenarios/swarm.md), judged against the true poses.
     assert mon.samples >= DURATION / mon.sample_every * 0.8
     assert not np.isnan(errors[:N]).any(), "the monitor judges from the first sample with every estimate"
     assert np.median(errors[np.isfinite(errors)]) < 0.3, f"median localization error {np.nanmedian(errors):.2f} m"

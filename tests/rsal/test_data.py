@@ -119,6 +119,18 @@ def test_position_validation(args: tuple[object, ...], bad: str) -> None:
     assert bad in str(exc.value)
 
 
+def test_position_fast_path_keeps_the_checks() -> None:
+    """Finite floats skip the conversion; anything else still goes through it."""
+    big = Position(1e308, 1e308, 0.0)  # finite, though their sum is not
+    assert big.as_tuple() == (1e308, 1e308, 0.0)
+    import numpy as np
+
+    q = Position(np.float64(1.5), np.float32(2.0), 0)
+    assert q.as_tuple() == (1.5, 2.0, 0.0) and all(type(v) is float for v in q.as_tuple())
+    with pytest.raises(ValueError, match="Position.y"):
+        Position(0.0, math.nan, 0.0)
+
+
 def test_distance_to() -> None:
     assert Position(1, 1).distance_to(Position(4, 5, 2.0)) == pytest.approx(5.0)
     assert Position(1, 1).distance_to(Position(1, 1)) == 0.0

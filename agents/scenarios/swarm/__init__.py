@@ -5,6 +5,8 @@
 - :mod:`.agents`: :class:`SwarmAgent` (one robot: wall-following with the :class:`Disperse` layer,
   broadcasting, accounting what it receives), on the host's shared :class:`agents.hub.RobotHub`;
 - :mod:`.monitor`: :class:`SwarmMonitor`, the verdict from the simulation's ground truth;
+- :mod:`.ledger`: what the agents of a neighbourhood hub received, accounted per hub (:class:`.ledger.NearLedger`);
+- :mod:`.near`: the neighbourhood hub's work before each re-watch (the ledger's flush, the headings);
 - :mod:`.metrics`: delivery and latency figures (:class:`LatencyHistogram`);
 - :mod:`.delivery`: delivery within a neighbourhood radius on ground truth (:class:`NeighbourhoodDelivery`);
 - :mod:`.messages`: the ``swarm_stats`` service;

@@ -25,7 +25,7 @@ With ``neighbourhood`` R > 0 (neighbourhood-scoped broadcasts, the thesis's
 "information-hiding", 5.3) an agent publishes in the cell of its pose
 (``svc/send_position/<cell>/<sender>``, :mod:`agents.cells`) and the host's hub listens only to the
 cells within R plus a margin of its robots (:meth:`agents.hub.RobotHub.listen_near`); a message is
-accounted only for the agents whose own cells hold the sender's cell, in batches (:mod:`.ledger`),
+accounted only for the agents whose own cells hold the sender's cell, in batches per hub (:mod:`.ledger`, :mod:`.near`),
 and each agent reports the
 sequence numbers it received per sender as ranges (``ranges`` in ``swarm_stats``), which the monitor
 checks against the ground truth (every receiver within R of the sender at send time).
@@ -39,13 +39,11 @@ import random
 import time
 from collections.abc import Sequence
 
-import numpy as np
-
 from agents.cells import cell_of
 from agents.cells import margin as cell_margin
 from agents.cellsub import DEFAULT_WILDCARD_ABOVE
 from agents.classes import RobotAgent
-from agents.hub import RobotHub, robot_xy
+from agents.hub import RobotHub
 from agents.registry import agent_class
 from agents.services import Message, SendPosition
 from rsal.clock import clock
@@ -54,43 +52,17 @@ from rsal.keys import DeviceAddr
 from rsal.msgs import ErrorCode, RpcError
 from rsal.robot import Pioneer, RobotError
 
-from .behaviour import SwarmPioneer, away_from, away_headings
+from .behaviour import SwarmPioneer, away_from
 from .crowd import CrowdRobot, CrowdStep, drop_link, link_of
 from .ledger import NearLedger, Received
 from .messages import STATS_SERVICE
 from .metrics import LatencyHistogram, latency_bin, sequence
+from .near import Headings, near_hooks
 from .vector import HostStep
 
 __all__ = ["SwarmAgent"]
 
 log = logging.getLogger(__name__)
-
-
-class _Headings:
-    """The disperse headings of a neighbourhood hub's robots, all at once before each re-watch
-    (:func:`away_headings` on the positions the host received), instead of one numpy call per
-    agent and broadcast."""
-
-    def __init__(self, hub: RobotHub):
-        self.hub = hub
-        self.of: dict[str, float | None] = {}
-
-    def update(self) -> None:
-        agents, mine = [], []
-        for a in self.hub.agents.values():
-            if isinstance(a, SwarmAgent) and a.pioneer is not None and a.frame == "map":
-                p = robot_xy(a.pioneer)
-                if p is not None:
-                    agents.append(a)
-                    mine.append(p)
-        if not agents:
-            return
-        xy, index = self.hub.received_positions()
-        me = np.array(mine, dtype=float)
-        radius = np.array([min(a.disperse_radius, a.neighbourhood or a.disperse_radius) for a in agents])
-        own = np.array([index.get(a.robot, -1) for a in agents])
-        h = away_headings(me, xy, radius, own)
-        self.of = {a.robot: (None if np.isnan(v) else float(v)) for a, v in zip(agents, h.tolist(), strict=True)}
 
 
 # ---------------------------------------------------------------------------- agents
@@ -201,14 +173,14 @@ class SwarmAgent(RobotAgent):
         #: neighbourhood: the (sender, sequence number) pairs received (:mod:`.ledger`)
         self.got = Received()
         self._ledger: NearLedger | None = None
-        self._headings: _Headings | None = None
+        self._headings: Headings | None = None
         self.since: float | None = None  # wall time its reception began (neighbourhood: its cells watched)
         self._board = Board()  # its own, when it has its own subscription
         self.broadcasting = True
         #: sender id -> [first sequence seen, last sequence seen, messages received]
         self.senders: dict[str, list[int]] = {}
-        self.latency = LatencyHistogram()
-        self.received = 0
+        self._latency = LatencyHistogram()
+        self._received = 0
         self.unnumbered = 0  # send_position messages without a sequence number (other agents)
         self._hub: RobotHub | None = None
         self._next_stats = 0.0
@@ -225,8 +197,8 @@ class SwarmAgent(RobotAgent):
         self._account(msg.sender, sequence(msg.conversation), latency_bin(lat), lat)
 
     def _account(self, sender: str, seq: int | None, lat_bin: int, lat: float) -> None:
-        self.received += 1
-        self.latency.add_bin(lat_bin, lat)
+        self._received += 1
+        self._latency.add_bin(lat_bin, lat)
         if seq is None:
             self.unnumbered += 1
             return
@@ -243,15 +215,44 @@ class SwarmAgent(RobotAgent):
             s[0] = seq
         s[2] += 1
 
-    def take(self, keys: np.ndarray, bins: np.ndarray, lat: np.ndarray) -> None:
-        """Account a batch of neighbourhood messages (:meth:`.ledger.NearLedger.flush`)."""
-        self.got.add_keys(keys)
-        self.received += len(keys)
-        self.latency.add_many(bins, lat)
+    def join_ledger(self, ledger: NearLedger) -> None:
+        """Have ``ledger`` (its hub's) account the neighbourhood messages owed to this agent."""
+        self._ledger = ledger
+        ledger.join(self)
+
+    def _settle(self) -> None:
+        """Take what the hub's ledger accounted for this agent since it last asked (its keys, its
+        latency histogram's row, its count): the per-agent split happens only here, when the
+        agent's figures are read, not at every flush."""
+        t = self._ledger.take(self) if self._ledger is not None else None
+        if t is None or not t.n:
+            return
+        for k in t.keys:
+            self.got.add_keys(k)
+        self._received += t.n
+        self._latency.add_counts(t.counts, t.max_s, t.sum_s)
+
+    @property
+    def received(self) -> int:
+        """Messages received (accounted), its own not counted."""
+        self._settle()
+        return self._received
+
+    @property
+    def latency(self) -> LatencyHistogram:
+        """The latency histogram of the messages received."""
+        self._settle()
+        return self._latency
+
+    @latency.setter
+    def latency(self, hist: LatencyHistogram) -> None:  # e.g. a benchmark's fresh one for its window
+        self._settle()
+        self._latency = hist
 
     @property
     def ranges(self) -> dict[str, list[int]]:
         """Neighbourhood: sender id -> the sequence numbers received, flat ``[first0, last0, ...]``."""
+        self._settle()
         return self.got.ranges()
 
     @property
@@ -330,13 +331,14 @@ class SwarmAgent(RobotAgent):
         self._hub = RobotHub.attach(self._require_host(), self, period=self.period, board_timeout=self.board_timeout)
         try:
             if self.neighbourhood:
-                self._ledger, self._headings = _near_hooks(self._hub)
+                ledger, self._headings = near_hooks(self._hub, SwarmAgent)
+                self.join_ledger(ledger)
                 self._hub.listen_near(
                     self.neighbourhood,
                     self.cell_size,
                     self.margin,
                     self.report_every,
-                    self._ledger.on_message,
+                    ledger.on_message,
                     wildcard_above=self.wildcard_cells,
                 )
             elif self.shared:
@@ -480,6 +482,10 @@ class SwarmAgent(RobotAgent):
 
     async def killed(self) -> None:
         hub, self._hub = self._hub, None
+        if self._ledger is not None:
+            self._settle()  # its figures stay readable
+            self._ledger.leave(self)
+            self._ledger = None
         if hub is None:
             return
         robot = hub.remove_robot(self.robot)
@@ -496,20 +502,6 @@ class SwarmAgent(RobotAgent):
             f"{super().status()}  received {self.received} from {len(self.senders)} sender(s), "
             f"delivery {pct:.1f} %, p99 {1000 * self.latency.quantile(0.99):.1f} ms"
         )
-
-
-def _near_hooks(hub: RobotHub) -> tuple[NearLedger, _Headings]:
-    """The hub's :class:`.ledger.NearLedger` and :class:`_Headings` (made on first use; both run
-    before each re-watch)."""
-    owners = [getattr(fn, "__self__", None) for fn in hub.before_rewatch]
-    found = {type(o): o for o in owners if o is not None}
-    if NearLedger not in found:
-        found[NearLedger] = NearLedger(hub)
-        hub.before_rewatch.append(found[NearLedger].flush)
-    if _Headings not in found:
-        found[_Headings] = _Headings(hub)
-        hub.before_rewatch.append(found[_Headings].update)
-    return found[NearLedger], found[_Headings]
 
 
 def _account_shared(hub: RobotHub, msg: Message, now: float) -> None:

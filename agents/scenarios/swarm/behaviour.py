@@ -114,10 +114,11 @@ def away_headings(me: np.ndarray, others: np.ndarray, radius: np.ndarray, own: n
     i, j, dist = pairs["i"], rows[pairs["j"]], pairs["v"]
     keep = (dist < radius[i]) & (dist > 1e-3) & (j != own[i])
     i, j, dist = i[keep], j[keep], dist[keep]
-    push = np.zeros((len(me), 2))
-    np.add.at(push, i, (me[i] - others[j]) / (dist * dist)[:, None])
+    d = (me[i] - others[j]) / (dist * dist)[:, None]
+    px = np.bincount(i, weights=d[:, 0], minlength=len(me))  # the push on each row, summed
+    py = np.bincount(i, weights=d[:, 1], minlength=len(me))
     has = np.zeros(len(me), dtype=bool)
     has[i] = True
-    has &= np.any(push != 0.0, axis=1)
-    out[has] = np.arctan2(push[has, 1], push[has, 0])
+    has &= (px != 0.0) | (py != 0.0)
+    out[has] = np.arctan2(py[has], px[has])
     return out

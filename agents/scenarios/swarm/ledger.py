@@ -6,9 +6,14 @@ hold its sender's cell, yet one host of 1000 robots still sees some 100 k (recei
 per second; a call per pair would fill the host's loop. Instead:
 
 - :class:`NearLedger` (one per :class:`agents.hub.RobotHub`) appends each message once (sender,
-  sequence number, cell, latency) and, when the hub is about to change its agents' cells
-  (:attr:`agents.hub.RobotHub.before_rewatch`, every report period), hands each agent the batch of
-  messages in its cells at once, as numpy arrays (:meth:`NearLedger.flush`);
+  sequence number, position, latency) and, when the hub is about to change its agents' cells
+  (:attr:`agents.hub.RobotHub.before_rewatch`, every report period), accounts the (receiver,
+  message) pairs of all its agents at once (:meth:`NearLedger.flush`): the messages grouped by cell
+  (one sort), each watched cell's receivers as agent indices, the pairs expanded receiver-major in
+  numpy, kept as one hub-wide key array per flush, and the latencies counted in one
+  (agents x bins) histogram for the hub (one ``bincount``). An agent gets its share -- its keys,
+  its histogram row, its count -- only when it asks (:meth:`NearLedger.take`, when its
+  ``swarm_stats`` are built), so a flush costs no Python call per agent;
 - :class:`Received` keeps what one agent received as sorted integer keys (sender code, sequence
   number) and gives them as flat ranges per sender (:meth:`Received.ranges`: ``swarm_stats``'s
   ``ranges``, checked by :class:`.delivery.NeighbourhoodDelivery` against ground truth).
@@ -19,11 +24,10 @@ Sender ids are interned process-wide (:func:`code`), so keys of different hubs a
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-from agents.cells import cell_of
 
 from .metrics import LATENCY_EDGES, sequence
 
@@ -31,7 +35,7 @@ if TYPE_CHECKING:
     from agents.hub import RobotHub
     from agents.services import Message
 
-__all__ = ["NearLedger", "Received", "code", "latency_bins"]
+__all__ = ["NearLedger", "Received", "Taken", "code", "latency_bins"]
 
 _SEQ_BITS = 24
 _SEQ_MASK = (1 << _SEQ_BITS) - 1
@@ -95,63 +99,182 @@ class Received:
         return out
 
 
-class NearLedger:
-    """One hub's log of neighbourhood broadcasts, handed to its agents in batches (:meth:`flush`)."""
+@dataclass
+class Taken:
+    """What a hub accounted for one agent since it last asked (:meth:`NearLedger.take`)."""
 
-    def __init__(self, hub: RobotHub):
+    keys: list[np.ndarray]  # (sender code << 24 | sequence number) per message, in batches
+    counts: np.ndarray  # its latency histogram's counts per bin of LATENCY_EDGES
+    max_s: float
+    sum_s: float
+    n: int  # messages accounted (keys may repeat when its cells listed it twice)
+
+
+class NearLedger:
+    """One hub's log of neighbourhood broadcasts, accounted for all its agents at once
+    (:meth:`flush`) and handed to each agent when it asks (:meth:`take`).
+
+    Only agents that :meth:`join` are accounted. ``keep`` flushes' key batches stay in the hub
+    (an agent that asks less often gets its older slices parked, so memory stays what the agents'
+    own records would hold)."""
+
+    def __init__(self, hub: RobotHub, keep: int = 16):
         self.hub = hub
+        self.keep = keep
         self._key: list[int] = []
-        self._cell: list[str] = []
+        self._x: list[float] = []
+        self._y: list[float] = []
         self._lat: list[float] = []
         self.flushed_at = time.time()  # wall time up to which the agents' figures are complete
         self.messages = 0
+        self.pairs = 0  # (receiver, message) pairs accounted
+        # the joined agents: index <-> agent, each one's own sender code (its messages are not owed to it)
+        self._index: dict[int, int] = {}
+        self._agents: list[object | None] = []
+        self._own = np.zeros(0, dtype=np.int64)
+        # per agent: latency counts (agents x bins), max, sum, messages; the next batch it takes
+        self._counts = np.zeros((0, _NBINS), dtype=np.int64)
+        self._max = np.zeros(0)
+        self._sum = np.zeros(0)
+        self._n = np.zeros(0, dtype=np.int64)
+        self._next = np.zeros(0, dtype=np.int64)
+        # the key batches of the last flushes: (keys receiver-major, bounds per agent index)
+        self._batches: list[tuple[np.ndarray, np.ndarray]] = []
+        self._base = 0  # the number of the first batch in _batches
+        self._parked: dict[int, list[np.ndarray]] = {}  # slices of dropped batches not yet taken
 
+    # ------------------------------------------------------------------ agents
+    def join(self, agent: object) -> None:
+        """Account ``agent`` (an object with an ``id``) from the next flush on, when the hub lists
+        it as a receiver of a cell (:meth:`agents.hub.RobotHub.agents_in`)."""
+        if id(agent) in self._index:
+            return
+        i = self._index[id(agent)] = len(self._agents)
+        self._agents.append(agent)
+        if i >= len(self._own):
+            grow = max(64, 2 * len(self._own))
+            self._own = np.r_[self._own, np.full(grow, -1, dtype=np.int64)]
+            self._counts = np.vstack([self._counts, np.zeros((grow, _NBINS), dtype=np.int64)])
+            self._max = np.r_[self._max, np.zeros(grow)]
+            self._sum = np.r_[self._sum, np.zeros(grow)]
+            self._n = np.r_[self._n, np.zeros(grow, dtype=np.int64)]
+            self._next = np.r_[self._next, np.zeros(grow, dtype=np.int64)]
+        self._own[i] = code(agent.id)  # type: ignore[attr-defined]
+        self._next[i] = self._base + len(self._batches)
+
+    def leave(self, agent: object) -> None:
+        """Stop accounting ``agent`` (what it has not taken is dropped)."""
+        i = self._index.pop(id(agent), None)
+        if i is not None:
+            self._agents[i] = None
+            self._parked.pop(i, None)
+            self._counts[i] = 0
+            self._max[i] = self._sum[i] = 0.0
+            self._n[i] = 0
+
+    def take(self, agent: object) -> Taken | None:
+        """What the hub accounted for ``agent`` since it last asked (None if it has not joined)."""
+        i = self._index.get(id(agent))
+        if i is None:
+            return None
+        keys = self._parked.pop(i, [])
+        end = self._base + len(self._batches)
+        for b in range(max(int(self._next[i]) - self._base, 0), len(self._batches)):  # parked: older
+            k, bounds = self._batches[b]
+            if i + 1 < len(bounds) and bounds[i + 1] > bounds[i]:
+                keys.append(k[bounds[i] : bounds[i + 1]])
+        self._next[i] = end
+        out = Taken(keys, self._counts[i].copy(), float(self._max[i]), float(self._sum[i]), int(self._n[i]))
+        self._counts[i] = 0
+        self._max[i] = self._sum[i] = 0.0
+        self._n[i] = 0
+        return out
+
+    # ------------------------------------------------------------------ messages
     def on_message(self, hub: RobotHub, msg: Message, now: float) -> None:  # the host's loop, once per message
         seq = sequence(msg.conversation)
         if seq is None:
             return
         b = msg.body
         self._key.append((code(msg.sender) << _SEQ_BITS) | seq)
-        self._cell.append(cell_of(b.x, b.y, hub.cell_size))
+        self._x.append(b.x)
+        self._y.append(b.y)
         self._lat.append(now - msg.time)
         self.messages += 1
 
     def flush(self) -> None:
-        """Account the messages logged since the last flush for every agent whose cells (as they
-        are now, before the hub changes them) hold the message's cell."""
+        """Account the messages logged since the last flush for every joined agent whose cells (as
+        they are now, before the hub changes them) hold the message's cell, except its own."""
         now = time.time()
-        if not self._key:
+        n = len(self._key)
+        if not n:
             self.flushed_at = now
             return
         keys = np.asarray(self._key, dtype=np.int64)
-        lat = np.maximum(np.asarray(self._lat), 0.0)
-        cells = self._cell
-        self._key, self._cell, self._lat = [], [], []
+        size = self.hub.cell_size
+        cx = np.floor(np.asarray(self._x, dtype=float) / size).astype(np.int64)  # agents.cells.cell_of
+        cy = np.floor(np.asarray(self._y, dtype=float) / size).astype(np.int64)
+        lat = np.maximum(np.asarray(self._lat, dtype=float), 0.0)
+        self._key, self._x, self._y, self._lat = [], [], [], []
         bins = latency_bins(lat)
-        by_cell: dict[str, list[int]] = {}
-        for i, c in enumerate(cells):
-            by_cell.setdefault(c, []).append(i)
-        per_agent: dict[int, tuple[object, list[np.ndarray]]] = {}
-        for c, idx in by_cell.items():
-            agents = self.hub.agents_in(c)
-            if not agents:
-                continue
-            arr = np.asarray(idx)
-            for a in agents:
-                e = per_agent.get(id(a))
-                if e is None:
-                    per_agent[id(a)] = (a, [arr])
-                else:
-                    e[1].append(arr)
-        senders = keys >> _SEQ_BITS
-        for a, parts in per_agent.values():
-            take = getattr(a, "take", None)
-            if take is None:
-                continue
-            idx = parts[0] if len(parts) == 1 else np.concatenate(parts)
-            own = _codes.get(a.id)
-            if own is not None:
-                idx = idx[senders[idx] != own]
-            if len(idx):
-                take(keys[idx], bins[idx], lat[idx])
+        # the messages grouped by cell: order[start[j]:end[j]] are those of distinct cell j
+        cc = (cx << 32) + (cy & 0xFFFFFFFF)
+        order = np.argsort(cc, kind="stable")
+        sc = cc[order]
+        start = np.nonzero(np.r_[True, sc[1:] != sc[:-1]])[0]
+        end = np.r_[start[1:], n]
+        # (agent index, cell j) for every receiver the hub lists in each of these cells
+        index = self._index
+        pa: list[int] = []
+        pc: list[int] = []
+        first = order[start]
+        for j, (ix, iy) in enumerate(zip(cx[first].tolist(), cy[first].tolist(), strict=True)):
+            for a in self.hub.agents_in(f"c{ix}_{iy}"):
+                i = index.get(id(a))
+                if i is not None:
+                    pa.append(i)
+                    pc.append(j)
+        self._batch(keys, bins, lat, order, start, end, np.asarray(pa, dtype=np.int64), np.asarray(pc, dtype=np.int64))
         self.flushed_at = now
+
+    def _batch(
+        self,
+        keys: np.ndarray,
+        bins: np.ndarray,
+        lat: np.ndarray,
+        order: np.ndarray,
+        start: np.ndarray,
+        end: np.ndarray,
+        pa: np.ndarray,
+        pc: np.ndarray,
+    ) -> None:
+        """Expand the (agent index ``pa``, cell ``pc``) pairs into (agent, message) pairs,
+        receiver-major (``order[start[j]:end[j]]`` are cell j's messages), and count them."""
+        na = len(self._agents)
+        o = np.argsort(pa, kind="stable")
+        pa, pc = pa[o], pc[o]
+        length = end[pc] - start[pc]
+        total = int(length.sum())
+        offset = np.cumsum(length) - length
+        msg = order[np.repeat(start[pc] - offset, length) + np.arange(total)]
+        agent = np.repeat(pa, length)
+        ok = (keys[msg] >> _SEQ_BITS) != self._own[agent]  # not its own messages
+        msg, agent = msg[ok], agent[ok]
+        self.pairs += len(msg)
+        per = np.bincount(agent, minlength=na)
+        bounds = np.r_[0, np.cumsum(per)]
+        self._counts[:na] += np.bincount(agent * _NBINS + bins[msg], minlength=na * _NBINS).reshape(na, _NBINS)
+        lm = lat[msg]
+        self._sum[:na] += np.bincount(agent, weights=lm, minlength=na)
+        self._n[:na] += per
+        has = np.nonzero(per)[0]
+        if len(has):
+            self._max[has] = np.maximum(self._max[has], np.maximum.reduceat(lm, bounds[has]))
+        self._batches.append((keys[msg], bounds))
+        while len(self._batches) > self.keep:  # park the oldest batch's slices of the agents that did not ask
+            k, b = self._batches.pop(0)
+            waiting = np.nonzero(self._next[: len(b) - 1] <= self._base)[0]
+            for i in waiting[b[waiting + 1] > b[waiting]].tolist():
+                if self._agents[i] is not None:
+                    self._parked.setdefault(i, []).append(k[b[i] : b[i + 1]])
+            self._base += 1

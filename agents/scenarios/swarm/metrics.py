@@ -67,6 +67,14 @@ class LatencyHistogram:
             self.max_s = max(self.max_s, float(np.max(latencies)))
             self.sum_s += float(np.sum(latencies))
 
+    def add_counts(self, counts: np.ndarray, max_s: float, sum_s: float) -> None:
+        """Count a whole histogram's bins (counts per bin, their largest and summed latency: a
+        row of :class:`.ledger.NearLedger`'s per-agent histograms)."""
+        self._flush()
+        self.counts += counts
+        self.max_s = max(self.max_s, float(max_s))
+        self.sum_s += float(sum_s)
+
     def _flush(self) -> None:
         if self._npending:
             self.counts += np.asarray(self._pending, dtype=np.int64)
