@@ -422,7 +422,8 @@ def _run_sim_and_host(n: int, form: str, args, hosts: int = 1, vector: bool = Tr
         world = write_crowd_world(Path(tmp) / f"crowd{n}.world", n, seed=args.seed, localization=loc)
         ep = f"tcp/127.0.0.1:{_free_port()}"
         sim = subprocess.Popen(
-            [sys.executable, "-m", "rsal.cli", "sim", str(world), "--listen", ep, "--no-map"],
+            [sys.executable, "-m", "rsal.cli", "sim", str(world), "--listen", ep, "--no-map"]
+            + ([] if args.sim_threads is None else ["--threads", str(args.sim_threads)]),
             cwd=ROOT,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
@@ -471,6 +472,14 @@ def main() -> None:
         help="each robot runs its own behaviour cycle (not the host's vectorised step)",
     )
     ap.add_argument(
+        "--sim-threads",
+        type=int,
+        default=1,
+        metavar="N",
+        help="the simulator's ray-casting threads (rsal sim --threads; 1, the default and the thousand app's: "
+        "the stepping thread alone, least CPU in all; -1: every core)",
+    )
+    ap.add_argument(
         "--crowd",
         action="store_true",
         help="the hosts read and command their robots through the simulator's crowd device (one message per step)",
@@ -503,6 +512,8 @@ def main() -> None:
     ap.add_argument("--connect", default="", help=argparse.SUPPRESS)
     ap.add_argument("--sim-pid", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.sim_threads < 0:
+        args.sim_threads = None  # the world's (every core)
     if args.role == "host":
         args.robots = int(args.robots)
         host_main(args)
