@@ -10,15 +10,19 @@ the crowd's). Each wandering robot has its own :class:`mrs_bridge.nav.amcl.Amcl`
 ``rsal sim --nav`` configures it for a sonar ring, fed every odometry pose and every sonar scan as
 the ``amcl`` driver is.
 
-Two filters per robot are run on the same scans in the same run:
+Three filters per robot are run on the same scans in the same run:
 
 - ``known=off``: the filter as it was (the map only);
 - ``known=on``: every ``--broadcast`` s each robot learns its neighbours' *estimated* positions (what
   their agents broadcast; never the truth; a standing robot's is where it stands) within
   ``--radius`` m, declared to its filter as known obstacles (:meth:`Amcl.set_obstacles`, discs of
-  ``--disc`` m).
+  ``--disc`` m); the readings they explain are left out (:mod:`mrs_bridge.nav.knownobstacles`);
+- ``known=landmark``: the same declarations (from this variant's own estimates), the readings they
+  explain scored against the neighbours' bodies (:mod:`mrs_bridge.nav.landmarks`,
+  ``known_obstacle_sigma`` = ``--landmark-sigma``).
 
-Figures per variant: the share of robot-samples (every 0.5 s) within 0.5 m of the true pose, the
+Figures per variant: the share of robot-samples (every 0.5 s) within 0.5 m of the true pose (overall,
+``inner``: samples of robots with no wall within 5 m, the sonar's range, and ``outer``), the
 95th percentile and the worst error, and the share of readings the known obstacles left out.
 Output: ``bench=crowdloc key=value ...`` lines.
 Also per variant: the particle count the KLD bound reaches (mean and 95th percentile after each
@@ -45,6 +49,7 @@ from mrs_bridge.drivers.simmsgs import ranger_geometry  # noqa: E402
 from mrs_bridge.nav import profile  # noqa: E402
 from mrs_bridge.nav.amcl import Amcl  # noqa: E402
 from mrs_bridge.nav.amclparams import AmclParams  # noqa: E402
+from mrs_bridge.nav.conebeam import ConeMap  # noqa: E402
 from mrs_bridge.rigs.stacksim import _scan, grid_of  # noqa: E402
 from rsal.geometry import compose, relative  # noqa: E402
 from rsal.interfaces.ranger import RangerGeometry  # noqa: E402
@@ -54,6 +59,8 @@ from simulator.world import World  # noqa: E402
 
 SAMPLE_EVERY = 0.5  # s, as the thesis swarm's monitor samples
 BOUND = 0.5  # m, the thesis swarm's verdict
+INNER = 5.0  # m: a robot with no wall this near (the sonar's range) is an inner one
+VARIANTS = ("off", "on", "landmark")
 
 
 def run(
@@ -66,6 +73,7 @@ def run(
     disc: float,
     speed: float,
     max_samples: int | None = None,
+    landmark_sigma: float = 0.3,
 ) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "crowd.world"
@@ -78,18 +86,23 @@ def run(
     prm = {**profile.AMCL, **profile.AMCL_SONAR}
     if max_samples is not None:
         prm["pf_max_samples"] = max_samples
-    variants = ("off", "on")
+    variants = VARIANTS
     filters = {v: {} for v in variants}
+    cones = ConeMap(~grid.free, grid.resolution, grid.origin)  # clear: m to the nearest wall
     est = {v: {} for v in variants}  # robot -> (estimate at its last update, odometry then)
     geo = {}
     for r in names:
         t = world.get_pose(r)
         for v in variants:
-            p = AmclParams(**prm, init_pose=tuple(t), init_pose_var=(0.05, 0.05, math.radians(5) ** 2), seed=seed)
+            extra = {"known_obstacle_sigma": landmark_sigma if v == "landmark" else 0.0}
+            p = AmclParams(
+                **{**prm, **extra}, init_pose=tuple(t), init_pose_var=(0.05, 0.05, math.radians(5) ** 2), seed=seed
+            )
             filters[v][r] = Amcl(grid, p)
             est[v][r] = (tuple(t), None)
         geo[r] = RangerGeometry(ranger_geometry(world.rangers(r)[0]))
     errors = {v: [] for v in variants}
+    inner = []  # per sample: no wall within INNER m of the robot's true position
     left_out = {v: [0, 0] for v in variants}
     counts = {v: [] for v in variants}  # particles after each update
     cpu = {v: 0.0 for v in variants}  # s of CPU in the sensor updates
@@ -109,12 +122,13 @@ def run(
             return e if o0 is None else compose(e, relative(o0, odo[r]))
 
         if k % every_broadcast == 0:  # the agents' broadcasts: estimated positions, not the truth
-            xy = np.array([pose("on", r)[:2] for r in names] + [p[:2] for p in still.values()])
-            for i, r in enumerate(names):
-                d = np.hypot(*(xy - xy[i]).T)
-                near = d < radius
-                near[i] = False
-                filters["on"][r].set_obstacles(np.column_stack([xy[near], np.full(near.sum(), disc)]))
+            for v in variants[1:]:
+                xy = np.array([pose(v, r)[:2] for r in names] + [p[:2] for p in still.values()])
+                for i, r in enumerate(names):
+                    d = np.hypot(*(xy - xy[i]).T)
+                    near = d < radius
+                    near[i] = False
+                    filters[v][r].set_obstacles(np.column_stack([xy[near], np.full(near.sum(), disc)]))
         for r in names:
             rd = world.ranger(r, 0)
             sc = _scan(rd) if rd is not None else None
@@ -138,14 +152,21 @@ def run(
         if k % every_sample == 0:
             for r in names:
                 tr = world.get_pose(r)
+                ix = int((tr[0] - grid.origin[0]) / grid.resolution)
+                iy = int((tr[1] - grid.origin[1]) / grid.resolution)
+                inner.append(float(cones.clear[iy, ix]) > INNER)
                 for v in variants:
                     e = pose(v, r)
                     errors[v].append(math.dist(e[:2], tr[:2]))
     out = {"wall_s": time.perf_counter() - wall}
+    inner = np.array(inner)
     for v in variants:
         e = np.array(errors[v])
         out[v] = {
             "within": float(np.mean(e <= BOUND)),
+            "within_inner": float(np.mean(e[inner] <= BOUND)) if inner.any() else float("nan"),
+            "within_outer": float(np.mean(e[~inner] <= BOUND)) if (~inner).any() else float("nan"),
+            "inner_share": float(np.mean(inner)),
             "p95": float(np.percentile(e, 95)),
             "worst": float(e.max()),
             "explained": left_out[v][0] / max(1, left_out[v][1]),
@@ -170,16 +191,24 @@ def main() -> None:
     ap.add_argument(
         "--pf-max-samples", type=int, default=None, help="the filters' pf_max_samples (default: the sonar profile's)"
     )
+    ap.add_argument(
+        "--landmark-sigma", type=float, default=0.3, help="m: known=landmark's known_obstacle_sigma (default 0.3)"
+    )
     a = ap.parse_args()
     if not (1 <= a.rows <= 10 and 1 <= a.cols <= 10):
         ap.error(f"--rows {a.rows} and --cols {a.cols} must be 1..10 (the thesis crowd is 10 x 10)")
-    r = run(a.rows, a.cols, a.seconds, a.seed, a.broadcast, a.radius, a.disc, a.speed, a.pf_max_samples)
+    if a.landmark_sigma <= 0:
+        ap.error(f"--landmark-sigma {a.landmark_sigma} must be > 0 (m)")
+    r = run(
+        a.rows, a.cols, a.seconds, a.seed, a.broadcast, a.radius, a.disc, a.speed, a.pf_max_samples, a.landmark_sigma
+    )
     nmax = a.pf_max_samples or {**profile.AMCL, **profile.AMCL_SONAR}["pf_max_samples"]
-    for v in ("off", "on"):
+    for v in VARIANTS:
         f = r[v]
         print(
             f"bench=crowdloc robots={a.rows * a.cols} seconds={a.seconds:g} seed={a.seed} known={v} "
-            f"within_0.5m={f['within']:.3f} p95_m={f['p95']:.2f} worst_m={f['worst']:.2f} "
+            f"within_0.5m={f['within']:.3f} inner={f['within_inner']:.3f} outer={f['within_outer']:.3f} "
+            f"inner_share={f['inner_share']:.2f} p95_m={f['p95']:.2f} worst_m={f['worst']:.2f} "
             f"explained={f['explained']:.3f} pf_max_samples={nmax} particles_mean={f['particles']:.0f} "
             f"particles_p95={f['particles_p95']:.0f} updates_per_robot_s={f['updates_per_robot_s']:.2f} "
             f"cpu_ms_per_update={f['cpu_ms_per_update']:.2f} wall_s={r['wall_s']:.0f}"

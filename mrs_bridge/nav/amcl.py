@@ -76,6 +76,7 @@ from .conebeam import CONE_RAYS, ConeMap, cone_beam_jit, cone_expected_jit
 from .distfilter import expected_ranges, unmodeled
 from .grid import NavGrid
 from .knownobstacles import explained_by_obstacles
+from .landmarks import landmark_beam_jit
 
 __all__ = [
     "CONE_RAYS",
@@ -490,6 +491,36 @@ class Amcl:
             float(p.laser_sigma_hit),
         )
 
+    def _landmark_log_likelihood(self, z, bearings, origins, rays: int, range_max: float, use) -> np.ndarray:
+        """As :meth:`_cone_log_likelihood`, the readings ``use`` scored against the map and the
+        declared neighbours' bodies (:mod:`.landmarks`)."""
+        cm, p, q = self._cone_map(), self.params, self.particles
+        d = self.obstacles
+        return landmark_beam_jit(
+            np.ascontiguousarray(q[:, 0]),
+            np.ascontiguousarray(q[:, 1]),
+            np.ascontiguousarray(q[:, 2]),
+            np.ascontiguousarray(origins[:, 0], dtype=np.float64),
+            np.ascontiguousarray(origins[:, 1], dtype=np.float64),
+            np.ascontiguousarray(bearings, dtype=np.float64),
+            np.ascontiguousarray(z, dtype=np.float64),
+            int(rays),
+            np.ascontiguousarray(use, dtype=np.bool_),
+            np.ascontiguousarray(d[:, 0]),
+            np.ascontiguousarray(d[:, 1]),
+            np.full(d.shape[0], float(p.known_obstacle_body)),
+            cm.blocked,
+            cm.clear,
+            cm.resolution,
+            cm.origin[0],
+            cm.origin[1],
+            float(range_max),
+            float(p.laser_z_hit),
+            float(p.laser_z_rand),
+            float(p.laser_sigma_hit),
+            float(p.known_obstacle_sigma),
+        )
+
     def sensor(self, ranges, bearings, origins, range_min, range_max, *, beam_width=0.0) -> bool:
         """Apply one range scan if an update is due; returns whether it was applied.
 
@@ -534,24 +565,32 @@ class Amcl:
         margin = self.params.laser_unmodeled_margin
         if rays > 1:  # sonar cones: rays beam-major (beam j: j*rays .. j*rays+rays-1)
             bi = (bi[:, None] + wi[:, None] * np.linspace(-0.5, 0.5, rays)).reshape(-1)
+        landmarks = self.params.known_obstacle_sigma > 0.0 and rays > 1
         if self.obstacles.shape[0]:  # readings a known obstacle explains (before the distance filter:
             # in a crowd most readings are cut short, and it gives up on the scan when most are)
-            keep = ~(self._explained(zi, b[idx], oi, width[idx]) & (zi < rmax[idx] - _MAX_RANGE_TOL))
-            self.n_explained = int(keep.size - keep.sum())
-            idx, zi, oi = idx[keep], zi[keep], oi[keep]
-            bi = bi.reshape(-1, rays)[keep].reshape(-1)
+            seen = self._explained(zi, b[idx], oi, width[idx]) & (zi < rmax[idx] - _MAX_RANGE_TOL)
+            self.n_explained = int(seen.sum())
+            if landmarks:  # scored against the neighbours (nav.landmarks), spared the distance filter
+                keep = np.ones(seen.size, dtype=bool)
+            else:
+                keep = ~seen
+                idx, zi, oi, seen = idx[keep], zi[keep], oi[keep], seen[keep]
+                bi = bi.reshape(-1, rays)[keep].reshape(-1)
             if idx.size == 0:
                 return False
         else:
             self.n_explained = 0
+            seen = np.zeros(idx.size, dtype=bool)
         if margin > 0.0:  # leave out readings cut short by what the map lacks
-            keep = ~self._unmodeled(zi, bi, oi, rays, float(rmax[idx].max()), margin)
+            keep = ~self._unmodeled(zi, bi, oi, rays, float(rmax[idx].max()), margin) | seen
             self.n_unmodeled = int(keep.size - keep.sum())
-            idx, zi, oi = idx[keep], zi[keep], oi[keep]
+            idx, zi, oi, seen = idx[keep], zi[keep], oi[keep], seen[keep]
             bi = bi.reshape(-1, rays)[keep].reshape(-1)
             if idx.size == 0:
                 return False
-        if rays > 1:  # sonar cones: the beam model
+        if rays > 1 and seen.any():  # neighbours as landmarks
+            loglik = self._landmark_log_likelihood(zi, bi, oi, rays, float(rmax[idx].max()), seen)
+        elif rays > 1:  # sonar cones: the beam model
             loglik = self._cone_log_likelihood(zi, bi, oi, rays, float(rmax[idx].max()))
         else:
             lx = oi[:, 0] + zi * np.cos(bi)

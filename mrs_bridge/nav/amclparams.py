@@ -60,6 +60,11 @@ class AmclParams:
     # Not a Player parameter: the distance filter (nav.distfilter); a laser reading this many metres
     # shorter than the map predicts at the estimate is left out; 0 = off (Player's behaviour).
     laser_unmodeled_margin: float = 0.0  # m
+    # Not a Player parameter: how readings a declared neighbour explains count (nav.landmarks). 0 =
+    # left out (nav.knownobstacles); > 0 = scored against the neighbour's body as a landmark, this
+    # many metres of standard deviation added (in quadrature) for the neighbour's own uncertainty.
+    known_obstacle_sigma: float = 0.0  # m
+    known_obstacle_body: float = 0.3  # m, a neighbour's body radius when scored as a landmark
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -91,8 +96,16 @@ class AmclParams:
 
 
 _INT_MIN = {"pf_min_samples": 1, "pf_max_samples": 1, "laser_max_beams": 1, "resample_interval": 1}
-_POSITIVE = {"pf_err", "pf_z", "laser_z_hit", "laser_sigma_hit", "laser_likelihood_max_dist"}
-_NON_NEGATIVE = {"odom_alpha1", "odom_alpha2", "odom_alpha3", "odom_alpha4", "laser_z_rand", "laser_unmodeled_margin"}
+_POSITIVE = {"pf_err", "pf_z", "laser_z_hit", "laser_sigma_hit", "laser_likelihood_max_dist", "known_obstacle_body"}
+_NON_NEGATIVE = {
+    "odom_alpha1",
+    "odom_alpha2",
+    "odom_alpha3",
+    "odom_alpha4",
+    "laser_z_rand",
+    "laser_unmodeled_margin",
+    "known_obstacle_sigma",
+}
 _UNIT = {"recover_alpha_slow", "recover_alpha_fast", "pf_temper_ess"}
 _TUPLES = {"update_thresh": (2, True), "init_pose": (3, False), "init_pose_var": (3, True)}
 

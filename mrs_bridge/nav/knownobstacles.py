@@ -20,6 +20,11 @@ the beam hit), well short of it (the echo came from farther: a wall seen past th
 outside the cone explains nothing, and neither does a max-range reading (no echo at all: the
 evidence that nothing stands in the cone is kept). The test is made once per scan at the filter's mean pose (the
 belief is unimodal while tracking), for all beams and discs at once (numpy, no per-beam loop).
+
+Leaving the echoes out cures the pull towards walls, but a crowd's inner robot, with no wall within
+its sonars' range, then has nothing but odometry. With ``known_obstacle_sigma`` > 0 (the sonar
+profile's) the explained readings are instead scored against the neighbours as landmarks
+(:mod:`.landmarks`): this module then only picks which readings those are.
 """
 
 from __future__ import annotations
