@@ -110,6 +110,9 @@ class RobotHub:
         self._cells: CellSubscription | None = None
         self._watch_task: asyncio.Task | None = None
         self.agent_cells: dict[str, frozenset[str]] = {}  # agent id -> the cells it listens to
+        #: agent id -> wall time its robot's cells were first watched: its reception began (its robot's
+        #: pose may come later than the robot itself, and before it no cell of its is listened to)
+        self.watched_since: dict[str, float] = {}
         self._by_cell: dict[str, list[Agent]] = {}  # cell -> the agents listening to it
         self.rewatches = 0
         #: called (no arguments) just before the agents' cells change: to account what came under the old ones
@@ -231,6 +234,9 @@ class RobotHub:
         self._by_cell = by_cell
         if self._cells is not None:
             self._cells.watch(union)
+        now = time.time()
+        for aid, _a in moved:
+            self.watched_since.setdefault(aid, now)
         self.rewatches += 1
         return union
 
@@ -250,6 +256,10 @@ class RobotHub:
                     self._by_cell.setdefault(c, []).append(a)
         if not cells <= self._cells.cells:
             self._cells.watch(self._cells.cells | cells)
+        now = time.time()
+        for aid, a in self.agents.items():
+            if getattr(a, "robot", None) == robot:
+                self.watched_since.setdefault(aid, now)
 
     async def _rewatch_loop(self) -> None:
         next_t = clock().now()
@@ -375,6 +385,7 @@ class RobotHub:
         """Detach ``agent``; the last one closes the hub (loop, subscription, node, fabric)."""
         self.agents.pop(agent.id, None)
         self.agent_cells.pop(agent.id, None)
+        self.watched_since.pop(agent.id, None)
         if self.agents:
             return
         if self._task is not None:

@@ -282,7 +282,9 @@ class Subscription:
     """A subscriber to one service; :meth:`close` undeclares it (the owning agent does on kill).
     ``keyexpr`` narrows or widens what it subscribes to (default ``svc/<service>/*``) and
     ``accept_key(key)``, if given, turns a sample away by its key on Zenoh's thread, before it is
-    decoded (counted in :attr:`skipped`)."""
+    decoded (counted in :attr:`skipped`). With ``arrival``, ``callback(msg, t)`` also gets the wall
+    time ``t`` the sample reached this subscriber (on Zenoh's thread: when the session received it,
+    however long the host's loop then took to serve it)."""
 
     def __init__(
         self,
@@ -293,6 +295,8 @@ class Subscription:
         owner: str,
         keyexpr: str | None = None,
         accept_key: Callable[[str], bool] | None = None,
+        *,
+        arrival: bool = False,
     ):
         self.service = service
         self.owner = owner
@@ -302,11 +306,13 @@ class Subscription:
         self.received = 0  # messages passed to the callback
         self.skipped = 0  # samples ``accept_key`` turned away before decoding
         self._accept_key = accept_key
+        self._arrival = arrival
         self.keyexpr = keyexpr or service_key(service)
         self._sub = services.session.declare_subscriber(self.keyexpr, self._on_sample)
         self.closed = False
 
     def _on_sample(self, sample: zenoh.Sample) -> None:  # a Zenoh thread: decode, then hand over
+        t = time.time() if self._arrival else None
         key = str(sample.key_expr)
         if self._accept_key is not None and not self._accept_key(key):
             self.skipped += 1
@@ -316,16 +322,16 @@ class Subscription:
         except MessageError as e:
             self._services.reject(key, e)
             return
-        self._services.call_soon(self._deliver, msg)
+        self._services.call_soon(self._deliver, msg, t)
 
-    def _deliver(self, msg: Message) -> None:  # the host's loop
+    def _deliver(self, msg: Message, t: float | None = None) -> None:  # the host's loop
         if self.closed:
             return
         try:
             if self._filter is not None and not self._filter(msg):
                 return
             self.received += 1
-            out = self._callback(msg)
+            out = self._callback(msg) if t is None else self._callback(msg, t)
             if inspect.isawaitable(out):
                 self._services.host.spawn(out, f"{self.owner}: {self.service} callback")
         except Exception:

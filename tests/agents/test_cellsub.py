@@ -8,7 +8,8 @@ are undeclared when it ends.
 threshold holds one subscriber, receives every message of its cells and none of the others; while
 senders publish without pause the receiver switches to the wildcard and back, and every message of
 the cells watched throughout arrives exactly once. (c) A message received twice in a switch's
-overlap reaches the callback once.
+overlap reaches the callback once. (d) A subscriber asked for arrival times gets the time a sample
+reached the session, not the later time a busy loop served it (the swarm judge's send times).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import pytest
 from agents.cells import cell_of
 from agents.cellsub import DEFAULT_WILDCARD_ABOVE, CellSubscription
 from agents.runtime import Agent, AgentHost
-from agents.services import Message, SendPosition
+from agents.services import Message, SendPosition, Subscription
 from rsal.testing import FakeSession
 from rsal.transport import TransportArgs, open_session
 from tests.conftest import LoopThread, free_port, wait_until
@@ -231,3 +232,42 @@ def test_a_message_received_twice_in_a_switchs_overlap_reaches_the_callback_once
     finally:
         lt.run(host.stop())
         lt.close()
+
+
+def test_an_arrival_time_is_when_the_sample_reached_the_session_not_when_the_busy_loop_served_it(hosts):
+    lt, recv_host, send_host = hosts
+    got: list[tuple[int, float, float]] = []  # (sequence number, arrival, served)
+    lock = threading.Lock()
+
+    def on(msg: Message, arrived: float) -> None:  # the receiving host's loop
+        with lock:
+            got.append((int(msg.conversation), arrived, time.time()))
+
+    async def sub():
+        return Subscription(
+            recv_host.services, "send_position", on, None, "judge", keyexpr="svc/send_position/*/*", arrival=True
+        )
+
+    lt.run(sub())
+    svc = send_host.services
+
+    def heard() -> bool:
+        svc.publish("send_position", _pos("probe", 1.0), sender="probe", conversation="-1", cell="c0_0")
+        with lock:
+            return any(k == -1 for k, _a, _s in got)
+
+    wait_until(heard, 10, "the judge's subscriber at the sending host", interval=0.05)
+    blocked = threading.Event()
+
+    def block() -> None:  # the loop busy for a second, as when a host starts a crowd
+        blocked.set()
+        time.sleep(1.0)
+
+    lt.loop.call_soon_threadsafe(block)
+    assert blocked.wait(5)
+    sent_at = time.time()
+    svc.publish("send_position", _pos("walker", 1.0), sender="walker", conversation="7", cell="c0_0")
+    wait_until(lambda: any(k == 7 for k, _a, _s in got), 10, "the broadcast served")
+    (arrived, served) = next((a, s) for k, a, s in got if k == 7)
+    assert sent_at <= arrived < sent_at + 0.5  # taken on Zenoh's thread, at once
+    assert served - arrived >= 0.5  # the loop served it only after its busy second

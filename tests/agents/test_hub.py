@@ -223,3 +223,21 @@ def test_neighbourhood_cells_follow_the_robots_and_reach_only_their_receivers(ne
 
 async def _call(fn, *args):
     return fn(*args)
+
+
+def test_an_agents_reception_begins_when_its_robots_cells_are_first_watched(net):
+    import time
+
+    lt, host, _other = net
+    a = NearMember("a", "ra")
+    lt.run(host.start(a))
+    hub = a.hub
+    ra = MovingRobot("ra", 0.5, 0.5)
+    ra.position2d.latest = None  # its pose not known yet: no cell of its can be watched
+    lt.run(_call(hub.add_robot, "ra", ra))
+    assert "a" not in hub.agent_cells and "a" not in hub.watched_since
+    before = time.time()
+    ra.move(0.5, 0.5)  # the pose arrives: the next re-watch places it
+    wait_until(lambda: "a" in hub.watched_since, 5.0, "a's cells watched once its robot has a pose")
+    assert hub.watched_since["a"] >= before
+    assert hub.agent_cells["a"] and hub.agent_cells["a"] <= frozenset(hub._cells.cells)

@@ -272,6 +272,16 @@ class SwarmAgent(RobotAgent):
         want = sum(s[1] - s[0] + 1 for s in self.senders.values())
         return got, want
 
+    def listening_since(self) -> float | None:
+        """Wall time its reception began: with a neighbourhood, when the hub first watched its
+        robot's cells (a robot whose pose came late listened to nothing before), else when it
+        started; None before either."""
+        hub = self._hub
+        watched = hub.watched_since.get(self.id) if hub is not None and self.neighbourhood else None
+        if watched is None or self.since is None:
+            return self.since
+        return max(self.since, watched)
+
     def stats(self) -> dict:
         """The figures of the ``swarm_stats`` service (with a neighbourhood also ``ranges``:
         sender -> flat sequence ranges received, ``since`` and ``t``: wall times its reception
@@ -280,7 +290,7 @@ class SwarmAgent(RobotAgent):
         extra = {}
         if self.neighbourhood:
             t = self._ledger.flushed_at if self._ledger is not None else time.time()  # complete up to t
-            extra = {"since": self.since, "t": t, "ranges": self.ranges}
+            extra = {"since": self.listening_since(), "t": t, "ranges": self.ranges}
         return {
             **extra,
             "robot": self.robot,

@@ -7,9 +7,10 @@ applies. :class:`NeighbourhoodDelivery` states what is owed from ground truth in
 - **expected**: every (receiver, broadcast) pair whose robots' *true* distance at the broadcast's
   send time was at most ``radius`` -- the true poses come from the monitor's samples of the
   simulation (:meth:`truth`), linearly interpolated to the send time; the send time is when the
-  monitor itself received the broadcast (:meth:`sent`; it listens to every cell), not a time any
-  peer claims. A pair counts only while the receiver was listening: from ``settle`` seconds after
-  its reception began (``since``) to ``settle`` seconds before its latest report (``t``);
+  broadcast reached the monitor's session (:meth:`sent`; it listens to every cell, and takes the
+  time on Zenoh's thread, not when its busy loop served the message), not a time any peer claims.
+  A pair counts only while the receiver was listening: from ``settle`` seconds after its reception
+  began (``since``: its cells first watched) to ``settle`` seconds before its latest report (``t``);
 - **received**: what each receiver reports compactly: per sender, the sequence numbers received as
   flat ranges ``[first0, last0, first1, last1, ...]`` (``ranges`` in ``swarm_stats``).
 

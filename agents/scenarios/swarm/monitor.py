@@ -110,13 +110,22 @@ class SwarmMonitor(Agent):
         if self.delivery is not None:  # every cell's broadcasts: the send times of what is owed
             services = self._require_host().services
             self._sends = Subscription(
-                services, SendPosition.SERVICE, self._on_send, None, self.id, keyexpr=f"svc/{SendPosition.SERVICE}/*/*"
+                services,
+                SendPosition.SERVICE,
+                self._on_send,
+                None,
+                self.id,
+                keyexpr=f"svc/{SendPosition.SERVICE}/*/*",
+                arrival=True,
             )
 
-    def _on_send(self, msg: Message) -> None:
+    def _on_send(self, msg: Message, arrived: float) -> None:
+        # the send time is when the broadcast reached this session (Zenoh's thread), not when the
+        # loop served it: a loop busy starting a crowd serves it seconds later, after receivers that
+        # started meanwhile, which could not have had it, began to listen
         seq = sequence(msg.conversation)
         if seq is not None and self.delivery is not None:
-            self.delivery.sent(msg.sender, msg.body.robot, seq, time.time())
+            self.delivery.sent(msg.sender, msg.body.robot, seq, arrived)
 
     def _on_stats(self, msg: Message) -> None:
         if isinstance(msg.body, dict) and isinstance(msg.body.get("latency"), dict):
