@@ -10,8 +10,11 @@ minus 1.5 cells is always safe) while far from walls, then an exact Amanatides-W
 ("A Fast Voxel Traversal Algorithm for Ray Tracing", 1987) near them, so hits land exactly on
 cell boundaries. Dynamic geometry: every body is a circle; circles are bucketed in a uniform
 hash grid, each fan gathers the circles within its range and tests only the rays inside each
-circle's angular extent, analytically. Fans run in parallel (``prange``) on every core, or on
-the ``threads`` a world asks for (Stage's ``threads``).
+circle's angular extent, analytically; a fan of few rays (a sonar cone) tests each of its rays
+against each circle instead, with products alone (the window's trigonometry per circle cost more
+than the rays it spares: 1000 sonar robots, 46 -> 15 ms per cast on one thread). Each ray's
+direction is computed once per cast, for the map and the circles alike. Fans run in parallel
+(``prange``) on every core, or on the ``threads`` a world asks for (Stage's ``threads``).
 
 A pure-numpy implementation of the same contract, :func:`cast_fans_numpy`, is the benchmark
 baseline and the reference the tests compare against.
@@ -27,6 +30,7 @@ import numpy as np
 __all__ = ["CircleIndex", "cast_fans", "cast_fans_numpy", "segment_min"]
 
 _TWO_PI = 2.0 * math.pi
+_SMALL_FAN = 8  # rays: a fan this small tests every ray against a circle (no angular window)
 
 
 @nb.njit(cache=True, fastmath=False, inline="always")
@@ -146,6 +150,8 @@ def _cast_fans(
     seed,
     step,
     out,
+    ray_c,
+    ray_s,
 ):
     nfans = fx.shape[0]
     ncirc = cx.shape[0]
@@ -159,11 +165,19 @@ def _cast_fans(
         off = foffset[f]
         for i in range(n):
             a = th0 + i * dth
+            c = math.cos(a)
+            s = math.sin(a)
+            ray_c[off + i] = c
+            ray_s[off + i] = s
             if use_static:
-                out[off + i] = _march(dist, occ, res, ox0, oy0, px, py, math.cos(a), math.sin(a), rmax)
+                out[off + i] = _march(dist, occ, res, ox0, oy0, px, py, c, s, rmax)
             else:
                 out[off + i] = rmax
         if ncirc > 0:
+            # A small fan (a sonar cone's few rays) tests each ray against each circle directly: a
+            # few products per ray and circle, no trigonometry per circle (the angular window
+            # below costs an atan2, an asin and a modulo per circle, worth it only for many rays).
+            small = n <= _SMALL_FAN
             # Circles within range, through the hash grid.
             gx0 = int(math.floor((px - rmax - hx0) / hcell))
             gx1 = int(math.floor((px + rmax - hx0) / hcell))
@@ -188,6 +202,21 @@ def _cast_fans(
                         dy = cy[j] - py
                         r = cr[j]
                         d2 = dx * dx + dy * dy
+                        if small:
+                            r2 = r * r
+                            if d2 <= r2 or d2 >= (rmax + r) * (rmax + r):
+                                continue
+                            for i in range(n):
+                                proj = dx * ray_c[off + i] + dy * ray_s[off + i]
+                                if proj <= 0.0:
+                                    continue
+                                perp2 = d2 - proj * proj
+                                if perp2 >= r2:
+                                    continue
+                                t = proj - math.sqrt(r2 - perp2)
+                                if t < out[off + i]:
+                                    out[off + i] = t
+                            continue
                         d = math.sqrt(d2)
                         if d - r >= rmax or d <= r:
                             continue
@@ -396,6 +425,8 @@ def _cast(dist, occ, res, ox0, oy0, fx, n, offset, fans, circles, static, seed, 
         np.uint64(seed & 0xFFFFFFFFFFFFFFFF),
         np.int64(step),
         out,
+        np.empty_like(out),  # each ray's direction (cos, sin), computed once per cast
+        np.empty_like(out),
     )
     return out
 

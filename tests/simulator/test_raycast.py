@@ -109,6 +109,31 @@ def test_matches_numpy_reference_on_random_fans():
     assert close.mean() > 0.995
 
 
+def test_sonar_cones_among_a_crowd_match_the_reference_for_both_fan_sizes():
+    # A crowd's sonar cones (5 rays each: the direct ray-by-circle test) and 12-ray fans (the
+    # angular window) against the same dense circles: both match the analytic reference.
+    rng = np.random.default_rng(11)
+    m = 300
+    cx, cy = rng.uniform(-15, 15, m), rng.uniform(-15, 15, m)
+    circles = CircleIndex(cx, cy, np.full(m, 0.3), np.arange(m))
+    for n in (5, 12):
+        k = 8 * m
+        robot = np.repeat(np.arange(m), 8)
+        fans = {
+            "x": cx[robot] + 0.2 * np.cos(np.tile(np.arange(8), m)),
+            "y": cy[robot] + 0.2 * np.sin(np.tile(np.arange(8), m)),
+            "th0": rng.uniform(-math.pi, math.pi, k),
+            "dth": np.full(k, math.radians(15) / (n - 1)),
+            "n": np.full(k, n),
+            "rmax": np.full(k, 5.0),
+            "owner": robot,
+        }
+        fast = cast_fans(None, fans, circles)
+        ref = cast_fans_numpy(None, fans, circles)
+        assert (fast < 5.0).mean() > 0.3  # the crowd is dense: many rays hit a neighbour
+        np.testing.assert_allclose(fast, ref, atol=1e-9)
+
+
 def test_circle_index_finds_circles_spanning_many_cells():
     circles = CircleIndex(np.array([0.0, 30.0]), np.array([0.0, 0.0]), np.array([3.0, 0.5]), np.array([1, 2]), cell=1.0)
     out = cast_fans(None, fan(-10.0, 2.5, 0.0, rmax=50.0), circles)
