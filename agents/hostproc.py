@@ -12,7 +12,9 @@ Each agent is built as ``resolve(cls)(id, robot=robot, **kwargs)`` with the glob
 its constructor accepts and its own ``args`` (:func:`agents.scenario.constructor_kwargs`). Agents
 that drive a robot (an async ``find_robot(fabric)``, like :class:`agents.classes.RobotAgent`) look
 for their devices concurrently, off the loop, so one slow robot does not hold up the others; then
-each is started on the host. Progress lines are ``[host NAME] ...`` on stdout, every
+each is started on the host. An agent whose ``robot_built_by_host`` is true (a swarm agent: its
+host's hub builds every robot through one device node or the simulator's crowd device) skips that
+search. Progress lines are ``[host NAME] ...`` on stdout, every
 ``--report-every`` seconds. SIGTERM or SIGINT stops every agent (robots stopped, tokens
 ``agents/<id>`` withdrawn) and exits 0. An agent that cannot be built or started gives one line on
 stderr and exit 1 after the others are stopped, unless ``--tolerate-failures``; an agent whose
@@ -145,7 +147,10 @@ async def serve_agents(
         fabrics: dict[str, Fabric] = {}
 
         async def start_one(agent) -> None:
-            if hasattr(agent, "find_robot") and getattr(agent, "pioneer", True) is None:
+            # an agent whose robot its host builds (a swarm's hub: one device node, or the crowd
+            # device) is not searched for robot by robot first
+            searches = hasattr(agent, "find_robot") and not getattr(agent, "robot_built_by_host", False)
+            if searches and getattr(agent, "pioneer", True) is None:
                 fabrics[agent.id] = Fabric(session, own_session=False)
                 await agent.find_robot(fabrics[agent.id])
             await host.start(agent)

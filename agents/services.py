@@ -357,6 +357,10 @@ class Services:
         self._pub_lock = threading.RLock()
         self.publishers_declared = 0  # publishers declared for cell broadcasts so far
         self.cache_publishers = True  # false: every cell broadcast a Session.put (for comparison)
+        # cell subscriptions served in process (CellSubscription loopback): a broadcast of this host
+        # reaches them as the Message it was, not through Zenoh's local routing, a thread and a decode
+        self._loopback: dict[str, list[CellSubscription]] = {}
+        self.local_senders: set[str] = set()  # senders whose cell broadcasts those subscriptions had so
 
     def warn(self, topic: str, text: str) -> None:
         self._warn.warn(topic, text)
@@ -402,19 +406,46 @@ class Services:
             self.session.put(service_key(service, sender), encode_message(sender, body, conv, time.time()))
             return conv
         key = f"svc/{service}/{check_name('cell', cell)}/{sender}"
-        payload = encode_message(sender, body, conv, time.time())
+        t = time.time()
+        payload = encode_message(sender, body, conv, t)
+        local = self._loopback.get(service)
+        if local:
+            self.local_senders.add(sender)  # before the put: its Zenoh copy is turned away by key
         if not self.cache_publishers:
             self.session.put(key, payload)
-            return conv
-        with self._pub_lock:
-            held = self._pubs.get((service, sender))
-            if held is None or held[0] != key:
-                if held is not None:
-                    _undeclare(held[1])  # the sender left that cell
-                held = self._pubs[(service, sender)] = (key, self.session.declare_publisher(key))
-                self.publishers_declared += 1
-            held[1].put(payload)
+        else:
+            with self._pub_lock:
+                held = self._pubs.get((service, sender))
+                if held is None or held[0] != key:
+                    if held is not None:
+                        _undeclare(held[1])  # the sender left that cell
+                    held = self._pubs[(service, sender)] = (key, self.session.declare_publisher(key))
+                    self.publishers_declared += 1
+                held[1].put(payload)
+        if local:
+            msg = Message(service, sender, conv, t, body)
+            for sub in tuple(local):
+                if self._on_loop():
+                    sub.local(msg, cell)
+                else:
+                    self.call_soon(sub.local, msg, cell)
         return conv
+
+    def _on_loop(self) -> bool:
+        try:
+            return asyncio.get_running_loop() is self.host.loop
+        except RuntimeError:
+            return False
+
+    def add_loopback(self, service: str, sub: CellSubscription) -> None:
+        """Hand ``sub`` this host's own broadcasts of ``service`` in process (it turns their Zenoh
+        copies away)."""
+        self._loopback.setdefault(service, []).append(sub)
+
+    def remove_loopback(self, service: str, sub: CellSubscription) -> None:
+        subs = self._loopback.get(service, [])
+        if sub in subs:
+            subs.remove(sub)
 
     def publishers(self, sender: str | None = None) -> dict[tuple[str, str], str]:
         """The cell broadcasts' declared publishers: (service, sender) -> the key each puts on."""
@@ -445,16 +476,18 @@ class Services:
         *,
         owner: str = "",
         wildcard_above: int | None = None,
+        loopback: bool = False,
     ) -> CellSubscription:
         """Receive the messages on ``svc/<service>/<cell>/*`` of the cells given to
         :meth:`agents.cellsub.CellSubscription.watch` (none at first): a subscriber per cell, or one
         on ``svc/<service>/*/*`` filtered by cell while more than ``wildcard_above`` cells are
-        watched (default :data:`agents.cellsub.DEFAULT_WILDCARD_ABOVE`)."""
+        watched (default :data:`agents.cellsub.DEFAULT_WILDCARD_ABOVE`). ``loopback``: this host's own
+        broadcasts reach it in process (:class:`agents.cellsub.CellSubscription`)."""
         from .cellsub import DEFAULT_WILDCARD_ABOVE, CellSubscription
 
         check_name("service", service)
         above = DEFAULT_WILDCARD_ABOVE if wildcard_above is None else wildcard_above
-        return CellSubscription(self, service, callback, flt, owner, wildcard_above=above)
+        return CellSubscription(self, service, callback, flt, owner, wildcard_above=above, loopback=loopback)
 
     # ------------------------------------------------------------------ hello
     def declare_hello(self, hello: Hello) -> zenoh.Queryable:

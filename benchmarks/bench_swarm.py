@@ -86,6 +86,7 @@ async def _barrier(sync: Path, name: str, index: int, hosts: int, timeout: float
 
 
 async def _host(args) -> dict:
+    from agents.hub import RobotHub
     from agents.runtime import AgentHost
     from agents.scenarios.swarm import LatencyHistogram, SwarmAgent, SwarmMonitor
     from agents.services import SendPosition
@@ -121,6 +122,7 @@ async def _host(args) -> dict:
     near = args.neighbourhood if args.form == "near" else 0.0
     async with AgentHost.connect(transport) as host:
         host.services.cache_publishers = args.pubcache
+        RobotHub.loopback = args.loopback
         t0 = time.perf_counter()
         mon = None
         if near and args.index == 0:  # the ground-truth judge, listening to every cell before the first broadcast
@@ -260,6 +262,7 @@ async def _host(args) -> dict:
             "vector": args.vector,
             "crowd": bool(args.crowd and not bare),
             "pubcache": args.pubcache,
+            "loopback": args.loopback,
             "wildcard_cells": args.wildcard_cells,
             "mode": args.mode,
             "form": "near" if near else "all",
@@ -333,6 +336,7 @@ def _run_host(
             cmd += ["--seconds", str(args.seconds), "--warmup", str(args.warmup), "--sim-pid", str(sim_pid)]
             cmd += ["--host-timeout", str(args.host_timeout), "--wildcard-cells", str(args.wildcard_cells)]
             cmd += [] if args.pubcache else ["--no-pubcache"]
+            cmd += [] if args.loopback else ["--no-loopback"]
             procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT))
             if mode == "bare" and k == 0:
                 time.sleep(1.0)  # the first host listens; the others connect to it
@@ -504,6 +508,12 @@ def main() -> None:
         dest="pubcache",
         action="store_false",
         help="near form: every broadcast a Session.put instead of a cached publisher per agent and cell (as before)",
+    )
+    ap.add_argument(
+        "--no-loopback",
+        dest="loopback",
+        action="store_false",
+        help="near form: a host's own broadcasts reach its cell subscription through Zenoh (as before), not in process",
     )
     ap.add_argument("--index", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--first", type=int, default=0, help=argparse.SUPPRESS)

@@ -10,6 +10,8 @@ senders publish without pause the receiver switches to the wildcard and back, an
 the cells watched throughout arrives exactly once. (c) A message received twice in a switch's
 overlap reaches the callback once. (d) A subscriber asked for arrival times gets the time a sample
 reached the session, not the later time a busy loop served it (the swarm judge's send times).
+(e) With loopback, a host's own broadcasts reach its cell subscription once, in process, and only
+from watched cells; the other host's still arrive through Zenoh.
 """
 
 from __future__ import annotations
@@ -271,3 +273,33 @@ def test_an_arrival_time_is_when_the_sample_reached_the_session_not_when_the_bus
     (arrived, served) = next((a, s) for k, a, s in got if k == 7)
     assert sent_at <= arrived < sent_at + 0.5  # taken on Zenoh's thread, at once
     assert served - arrived >= 0.5  # the loop served it only after its busy second
+
+
+def test_a_hosts_own_broadcasts_reach_its_loopback_subscription_once_in_process(hosts):
+    lt, recv_host, send_host = hosts
+    log = Log()
+    sub = _subscribe(lt, recv_host, {"c0_0"}, log, loopback=True)
+    me = lt.run(recv_host.start(Agent("me")))
+    _until_heard(send_host.services, log, "other", 1.0, "c0_0")  # the other host reaches it by Zenoh
+
+    async def say(seq: int, x: float, cell: str):
+        me.publish("send_position", _pos("me", x), conversation=str(seq), cell=cell)
+
+    for seq in range(20):
+        lt.run(say(seq, 1.0, "c0_0"))
+    lt.run(say(99, 4.0, "c1_0"))  # a cell the subscription does not watch
+    for seq in range(5):
+        other = _pos("other", 1.0)
+        send_host.services.publish("send_position", other, sender="other", conversation=str(seq), cell="c0_0")
+    wait_until(lambda: sum(1 for s, k in log.keys() if s == "other" and k >= 0) == 5, 10, "the other host's five")
+    time.sleep(0.3)  # any Zenoh copy of the host's own would have arrived by now
+    mine = [k for s, k in log.keys() if s == "me"]
+    assert mine == list(range(20))  # each once, in order, none from the unwatched cell
+    assert sub.local_received == 20
+    assert "me" in recv_host.services.local_senders
+    lt.run(_call(sub.close))
+    assert recv_host.services._loopback.get("send_position") == []
+
+
+async def _call(fn, *args):
+    return fn(*args)
