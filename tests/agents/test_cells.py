@@ -20,9 +20,8 @@ import numpy as np
 import pytest
 
 from agents.cells import cell_of, cells_near, cells_near_many, margin
-from agents.runtime import Agent, AgentHost
-from rsal.transport import TransportArgs, open_session
-from tests.conftest import LoopThread, free_port, wait_until
+from agents.runtime import Agent
+from tests.conftest import wait_until
 
 
 def test_cells_near_covers_the_disc_and_no_more():
@@ -76,23 +75,6 @@ class Receiver(Agent):
     def _on(self, msg):
         with self.lock:
             self.got.append((msg.sender, int(msg.conversation)))
-
-
-@pytest.fixture
-def hosts():
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    s_recv = open_session(TransportArgs(listen=[ep]))
-    s_send = open_session(TransportArgs(connect=[ep]))
-    lt = LoopThread()
-    recv, send = AgentHost(s_recv), AgentHost(s_send)
-    lt.run(recv.__aenter__())
-    lt.run(send.__aenter__())
-    yield lt, recv, send
-    lt.run(recv.stop())
-    lt.run(send.stop())
-    lt.close()
-    s_send.close()
-    s_recv.close()
 
 
 def test_a_moving_receiver_gets_every_neighbour_and_nobody_else(hosts):

@@ -27,25 +27,7 @@ from agents.cellsub import DEFAULT_WILDCARD_ABOVE, CellSubscription
 from agents.runtime import Agent, AgentHost
 from agents.services import Message, SendPosition, Subscription
 from rsal.testing import FakeSession
-from rsal.transport import TransportArgs, open_session
-from tests.conftest import LoopThread, free_port, wait_until
-
-
-@pytest.fixture
-def hosts():
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    s_recv = open_session(TransportArgs(listen=[ep]))
-    s_send = open_session(TransportArgs(connect=[ep]))
-    lt = LoopThread()
-    recv, send = AgentHost(s_recv), AgentHost(s_send)
-    lt.run(recv.__aenter__())
-    lt.run(send.__aenter__())
-    yield lt, recv, send
-    lt.run(recv.stop())
-    lt.run(send.stop())
-    lt.close()
-    s_send.close()
-    s_recv.close()
+from tests.conftest import LoopThread, wait_until
 
 
 class Log:
