@@ -284,7 +284,9 @@ class Subscription:
     ``accept_key(key)``, if given, turns a sample away by its key on Zenoh's thread, before it is
     decoded (counted in :attr:`skipped`). With ``arrival``, ``callback(msg, t)`` also gets the wall
     time ``t`` the sample reached this subscriber (on Zenoh's thread: when the session received it,
-    however long the host's loop then took to serve it)."""
+    however long the host's loop then took to serve it). With ``on_thread`` the callback runs on
+    Zenoh's thread itself, not the host's loop (it must be thread-safe and quick: e.g. append to a
+    queue that the agent drains), which spares a busy receiver a loop wake-up per message."""
 
     def __init__(
         self,
@@ -297,6 +299,7 @@ class Subscription:
         accept_key: Callable[[str], bool] | None = None,
         *,
         arrival: bool = False,
+        on_thread: bool = False,
     ):
         self.service = service
         self.owner = owner
@@ -307,6 +310,7 @@ class Subscription:
         self.skipped = 0  # samples ``accept_key`` turned away before decoding
         self._accept_key = accept_key
         self._arrival = arrival
+        self._on_thread = on_thread
         self.keyexpr = keyexpr or service_key(service)
         self._sub = services.session.declare_subscriber(self.keyexpr, self._on_sample)
         self.closed = False
@@ -322,9 +326,12 @@ class Subscription:
         except MessageError as e:
             self._services.reject(key, e)
             return
-        self._services.call_soon(self._deliver, msg, t)
+        if self._on_thread:
+            self._deliver(msg, t)
+        else:
+            self._services.call_soon(self._deliver, msg, t)
 
-    def _deliver(self, msg: Message, t: float | None = None) -> None:  # the host's loop
+    def _deliver(self, msg: Message, t: float | None = None) -> None:  # the host's loop (or on_thread)
         if self.closed:
             return
         try:
@@ -333,6 +340,9 @@ class Subscription:
             self.received += 1
             out = self._callback(msg) if t is None else self._callback(msg, t)
             if inspect.isawaitable(out):
+                if self._on_thread:  # no loop here to run it on
+                    getattr(out, "close", lambda: None)()
+                    raise TypeError("an on_thread callback must be a plain function, not a coroutine")
                 self._services.host.spawn(out, f"{self.owner}: {self.service} callback")
         except Exception:
             log.exception("%s: callback for %s from %s failed", self.owner, self.service, msg.sender)
@@ -361,6 +371,10 @@ class Services:
         # reaches them as the Message it was, not through Zenoh's local routing, a thread and a decode
         self._loopback: dict[str, list[CellSubscription]] = {}
         self.local_senders: set[str] = set()  # senders whose cell broadcasts those subscriptions had so
+        # calls from Zenoh's threads for the loop, served in batches (call_soon)
+        self._soon: list[tuple[Callable, tuple]] = []
+        self._soon_lock = threading.Lock()
+        self._soon_scheduled = False
 
     def warn(self, topic: str, text: str) -> None:
         self._warn.warn(topic, text)
@@ -379,11 +393,32 @@ class Services:
             self.warn(f"bad:{key}", f"dropped a malformed message on {key}: {e}")
 
     def call_soon(self, fn: Callable, *args: Any) -> None:
-        """Run ``fn(*args)`` on the host's loop (safe from any thread; ignored once the loop closed)."""
+        """Run ``fn(*args)`` on the host's loop (safe from any thread; ignored once the loop closed).
+
+        Calls are queued in order and served in batches: only the first call of a batch wakes the
+        loop (``call_soon_threadsafe`` writes to the loop's self-pipe), so a burst of samples from
+        Zenoh's threads costs one wake-up, not one each."""
+        with self._soon_lock:
+            self._soon.append((fn, args))
+            if self._soon_scheduled:
+                return
+            self._soon_scheduled = True
         try:
-            self.host.loop.call_soon_threadsafe(fn, *args)
+            self.host.loop.call_soon_threadsafe(self._run_soon)
         except RuntimeError:  # loop closed during shutdown
-            pass
+            with self._soon_lock:
+                self._soon.clear()
+                self._soon_scheduled = False
+
+    def _run_soon(self) -> None:  # the host's loop
+        with self._soon_lock:
+            batch, self._soon = self._soon, []
+            self._soon_scheduled = False  # calls queued from now on wake the loop again
+        for fn, args in batch:
+            try:
+                fn(*args)
+            except Exception:
+                log.exception("%s: a call handed to the loop failed", fn)
 
     def publish(
         self, service: str, body: Any, *, sender: str, conversation: str | None = None, cell: str | None = None

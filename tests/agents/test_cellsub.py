@@ -233,6 +233,25 @@ def test_an_arrival_time_is_when_the_sample_reached_the_session_not_when_the_bus
         )
 
     lt.run(sub())
+    busy = threading.Event()  # set while the receiving loop is held
+    quick: list[tuple[int, bool, bool]] = []  # (seq, the loop busy then, on the loop's thread)
+
+    def on_thread(msg: Message, arrived: float) -> None:  # Zenoh's thread
+        quick.append((int(msg.conversation), busy.is_set(), threading.current_thread() is lt.t))
+
+    async def sub_on_thread():
+        return Subscription(
+            recv_host.services,
+            "send_position",
+            on_thread,
+            None,
+            "quick",
+            keyexpr="svc/send_position/*/*",
+            arrival=True,
+            on_thread=True,
+        )
+
+    lt.run(sub_on_thread())
     svc = send_host.services
 
     def heard() -> bool:
@@ -244,8 +263,10 @@ def test_an_arrival_time_is_when_the_sample_reached_the_session_not_when_the_bus
     blocked = threading.Event()
 
     def block() -> None:  # the loop busy for a second, as when a host starts a crowd
+        busy.set()
         blocked.set()
         time.sleep(1.0)
+        busy.clear()
 
     lt.loop.call_soon_threadsafe(block)
     assert blocked.wait(5)
@@ -255,6 +276,7 @@ def test_an_arrival_time_is_when_the_sample_reached_the_session_not_when_the_bus
     (arrived, served) = next((a, s) for k, a, s in got if k == 7)
     assert sent_at <= arrived < sent_at + 0.5  # taken on Zenoh's thread, at once
     assert served - arrived >= 0.5  # the loop served it only after its busy second
+    assert (7, True, False) in quick  # on_thread: served at once, off the busy loop
 
 
 def test_a_hosts_own_broadcasts_reach_its_loopback_subscription_once_in_process(hosts):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import threading
 
 import msgpack
 import pytest
@@ -264,3 +265,48 @@ def test_codec_roundtrip_and_validation():
         Agent("bad/id")
     assert match(robot={"r1", "r2"})(Message("send_position", "s", "c", 1.0, SendPosition("r2", 0, 0, 0)))
     assert not match(sender="t")(Message("send_position", "s", "c", 1.0, SendPosition("r2", 0, 0, 0)))
+
+
+def test_calls_from_other_threads_run_on_the_loop_in_order_in_batches(net, caplog):
+    host = net["host"](net["listen"])
+    lt = net["loop"]
+    ran: list[tuple[int, int, bool]] = []
+    wakeups = 0
+    real = host.services._run_soon
+
+    def counting_run_soon():
+        nonlocal wakeups
+        wakeups += 1
+        real()
+
+    host.services._run_soon = counting_run_soon
+
+    def call(thread: int, i: int) -> None:
+        ran.append((thread, i, lt.loop.is_running() and asyncio.get_running_loop() is lt.loop))
+        if (thread, i) == (0, 10):
+            raise RuntimeError("a failing call on purpose")
+
+    gate = threading.Event()
+    blocked = threading.Event()
+
+    def block():  # holds the loop while the threads queue their calls
+        blocked.set()
+        gate.wait(5)
+
+    lt.loop.call_soon_threadsafe(block)
+    assert blocked.wait(5)
+    workers = [
+        threading.Thread(target=lambda t=t: [host.services.call_soon(call, t, i) for i in range(500)]) for t in range(2)
+    ]
+    with caplog.at_level(logging.ERROR, logger="agents.services"):
+        for w in workers:
+            w.start()
+        for w in workers:
+            w.join()
+        gate.set()
+        wait_until(lambda: len(ran) == 1000, 5, "every call run")
+    assert all(on_loop for _, _, on_loop in ran)  # on the host's loop, not the calling thread
+    for t in range(2):
+        assert [i for th, i, _ in ran if th == t] == list(range(500))  # each thread's calls in order
+    assert wakeups < 10  # one wake-up for the calls queued while the loop was busy, not one each
+    assert any("failed" in r.getMessage() and r.exc_info for r in caplog.records)  # logged, the rest ran
