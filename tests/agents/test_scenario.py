@@ -441,3 +441,13 @@ def test_a_mistake_is_one_line_naming_its_place_and_a_fix(tmp_path, base, old, n
     msg = error(tmp_path, text.replace(old, new)).partition(".yaml: ")[2]  # not the path: it names the test
     for part in expect:
         assert part in msg, (part, msg)
+
+
+def test_the_swarm_monitor_logs_at_its_own_period_not_the_agents_broadcast_period():
+    sc = load_scenario(ROOT / "deploy" / "scenarios" / "swarm.yaml")
+    groups = sc.applications["thousand"].groups()
+    monitor = next(e for g in groups.values() for e in g if e.id == "monitor")
+    swarmer = next(e for g in groups.values() for e in g if e.id == "swarm0")
+    assert sc.arguments["report_every"] == 0.5
+    assert build_agent(swarmer, sc.arguments).report_every == 0.5
+    assert build_agent(monitor, sc.arguments).log_every == 10.0

@@ -32,6 +32,7 @@ from agents.scenarios.swarm import (
     crowd_world,
     write_crowd_world,
 )
+from agents.scenarios.swarm.messages import STATS_SERVICE
 from agents.services import Message, Outcome, SendPosition
 from rsal.behaviours import Sectors
 from rsal.client import Fabric
@@ -101,6 +102,34 @@ def test_monitor_counts_overlaps_spread_and_judges():
     assert m.judge(10.0).ok
     m.stats["s2"] = {"received": 9, "expected": 10, "latency": h.to_dict()}
     assert "delivery 96.67 % < 100 %" in m.judge(10.0).text
+
+
+def test_monitor_counts_latency_from_each_agents_first_report_of_the_judged_run():
+    m = SwarmMonitor("mon", robots=2, duration=10, max_p99_ms=50)
+    start_up, running = LatencyHistogram(), LatencyHistogram()
+    for _ in range(100):
+        start_up.add(0.8)  # a crowd starting: late deliveries
+    for _ in range(1000):
+        running.add(0.004)
+    later = LatencyHistogram()
+    later.merge(start_up)
+    later.merge(running)
+
+    def report(sender: str, h: LatencyHistogram) -> None:
+        m._on_stats(Message(STATS_SERVICE, sender, "", 0.0, {"received": 1, "expected": 1, "latency": h.to_dict()}))
+
+    report("s0", start_up)  # before the run opened: the whole histogram counts
+    report("s1", start_up)
+    assert "p99 latency 800 ms" in m.judge(10.0).text and not m.judge(10.0).ok
+    m.window_from = time.time()
+    report("s0", start_up)  # the first report of the judged run: its base
+    report("s1", start_up)
+    report("s0", later)
+    report("s1", later)
+    got, want, hist, reporting = m.merged()
+    assert hist.n == 2000 and reporting == 2
+    v = m.judge(10.0)
+    assert v.ok and "p99 latency 5 ms" in v.text, v.text  # the upper edge of 4 ms's bin
 
 
 def test_disperse_steers_away_from_neighbours_until_a_wall_is_in_sight():
@@ -385,3 +414,15 @@ def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, s
     first, last = d.positions_at(d._truth_t[0]), d.positions_at(d._truth_t[-1])
     crossed = sum(cell_of(*first[i], cell) != cell_of(*last[i], cell) for i in range(n))
     assert crossed >= 4 and rewatches > 5, (crossed, rewatches)
+
+
+def test_a_crowd_started_at_once_spreads_its_broadcasts_and_stats_over_their_periods():
+    from agents.scenarios.swarm.agents import first_due
+
+    due = np.array([first_due(f"swarm{i}", 100.0, 0.5, 10.0) for i in range(500)])
+    for col, period in ((0, 0.5), (1, 10.0)):
+        offsets = due[:, col] - 100.0
+        assert offsets.min() >= 0.0 and offsets.max() <= period
+        counts, _ = np.histogram(offsets, bins=10, range=(0.0, period))
+        assert counts.max() < 100  # no tenth of the period holds a fifth of the crowd
+    assert first_due("swarm7", 0.0, 0.5, 10.0) == first_due("swarm7", 0.0, 0.5, 10.0)  # by its id: repeatable

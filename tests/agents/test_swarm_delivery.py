@@ -184,6 +184,7 @@ def test_ledger_hands_each_agent_the_messages_of_its_cells_in_one_batch():
     assert a0.ranges == {} and a0.received == 0
     assert a1.ranges == {"n0": [0, 2], "n9": [0, 2]} and a1.received == 6
     assert a1.latency.n == 6 and a1.latency.quantile(0.5) == pytest.approx(0.004, rel=0.26)
+    assert "received 6 from 2 sender(s) within 2 m" in a1.status(), a1.status()
     put("n9", 4, 2.5)  # seq 3 lost
     ledger.flush()
     assert a1.ranges["n9"] == [0, 2, 4, 4]

@@ -164,3 +164,34 @@ def test_flush_of_five_hundred_agents_costs_no_call_per_agent():
     # one Python call per watched cell (its receivers) at most, none per agent or pair
     assert max(calls) < len(by_cell) + 100 < len(agents), (calls, len(by_cell))
     assert sum(a.received for a in agents) == ledger.pairs
+
+
+def test_received_merges_batches_and_singles_into_sorted_unique_keys():
+    from agents.scenarios.swarm.ledger import code
+
+    rng = np.random.default_rng(3)
+    r = Received()
+    seen: set[tuple[str, int]] = set()
+    for step in range(30):  # batches that repeat and interleave, merged at every other step
+        for _ in range(3):
+            senders = rng.choice([f"s{i}" for i in range(20)], 40)
+            seqs = rng.integers(0, 200, 40)
+            r.add_keys(np.array([(code(s) << 24) | int(q) for s, q in zip(senders, seqs, strict=True)]))
+            seen.update(zip(senders.tolist(), seqs.tolist(), strict=True))
+        r.add("s3", step)
+        seen.add(("s3", step))
+        if step % 2:
+            k = r.keys()
+            assert np.all(np.diff(k) > 0)  # sorted, no repeats
+            assert len(r) == len(seen)
+    want: dict[str, list[int]] = {}
+    for s in sorted({s for s, _ in seen}):
+        q = sorted(q for t, q in seen if t == s)
+        runs = [q[0], q[0]]
+        for x in q[1:]:
+            if x == runs[-1] + 1:
+                runs[-1] = x
+            else:
+                runs += [x, x]
+        want[s] = runs
+    assert r.ranges() == want

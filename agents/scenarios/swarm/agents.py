@@ -337,9 +337,7 @@ class SwarmAgent(RobotAgent):
         self._hub.add_robot(self.robot, self.pioneer)  # neighbourhood: its cells are watched from now on
         self.since = time.time()
         now = clock().now()
-        # Spread the broadcasts of a crowd started at once over the reporting period.
-        self._next_report = now + random.Random(self.id).uniform(0.0, self.report_every)
-        self._next_stats = now + self.stats_every
+        self._next_report, self._next_stats = first_due(self.id, now, self.report_every, self.stats_every)
 
     def _join_hub(self) -> RobotHub:
         """Attach to the host's :class:`agents.hub.RobotHub` and, when ``shared``, to its
@@ -512,12 +510,21 @@ class SwarmAgent(RobotAgent):
             drop_link(hub)
 
     def status(self) -> str:
-        got, want = self.delivery()
-        pct = 100.0 * got / want if want else 100.0
-        return (
-            f"{super().status()}  received {self.received} from {len(self.senders)} sender(s), "
-            f"delivery {pct:.1f} %, p99 {1000 * self.latency.quantile(0.99):.1f} ms"
-        )
+        if self.neighbourhood:  # delivery within the radius is judged on ground truth, by the monitor
+            heard = f"received {self.received} from {self.got.senders()} sender(s) within {self.neighbourhood:g} m"
+        else:
+            got, want = self.delivery()
+            pct = 100.0 * got / want if want else 100.0
+            heard = f"received {self.received} from {len(self.senders)} sender(s), delivery {pct:.1f} %"
+        return f"{super().status()}  {heard}, p99 {1000 * self.latency.quantile(0.99):.1f} ms"
+
+
+def first_due(agent_id: str, now: float, report_every: float, stats_every: float) -> tuple[float, float]:
+    """When an agent started at ``now`` first broadcasts and first reports its stats: spread over
+    their periods by its id, so that a crowd started at once does not do either all at once (500
+    agents' stats at once held their host's loop for over half a second every period)."""
+    rng = random.Random(agent_id)
+    return now + rng.uniform(0.0, report_every), now + rng.uniform(0.0, stats_every)
 
 
 def _account_shared(hub: RobotHub, msg: Message, now: float) -> None:

@@ -77,13 +77,24 @@ class Received:
 
     def keys(self) -> np.ndarray:
         if self._new or self._one:
-            parts = [self._keys, *self._new, np.asarray(self._one, dtype=np.int64)]
-            self._keys = np.unique(np.concatenate(parts))
+            # merge the new keys into the sorted ones: sort only what is new (the whole set grows
+            # to tens of thousands per agent, sorted again at every report it would cost ms)
+            new = np.unique(np.concatenate([*self._new, np.asarray(self._one, dtype=np.int64)]))
             self._new, self._one = [], []
+            old = self._keys
+            pos = np.searchsorted(old, new)
+            seen = pos < len(old)
+            seen[seen] = old[pos[seen]] == new[seen]
+            fresh = ~seen
+            self._keys = np.insert(old, pos[fresh], new[fresh]) if fresh.any() else old
         return self._keys
 
     def __len__(self) -> int:
         return len(self.keys())
+
+    def senders(self) -> int:
+        """How many senders it received from."""
+        return len(np.unique(self.keys() >> _SEQ_BITS))
 
     def ranges(self) -> dict[str, list[int]]:
         """Sender id -> the sequence numbers received as flat ranges ``[first0, last0, ...]``."""

@@ -88,6 +88,14 @@ class LatencyHistogram:
         self.max_s = max(self.max_s, other.max_s)
         self.sum_s += other.sum_s
 
+    def subtract(self, earlier: LatencyHistogram) -> None:
+        """Remove the counts of an earlier snapshot of the same agent's histogram (what came since;
+        the largest latency stays the whole histogram's)."""
+        self._flush()
+        earlier._flush()
+        self.counts = np.maximum(self.counts - earlier.counts, 0)
+        self.sum_s = max(0.0, self.sum_s - earlier.sum_s)
+
     @property
     def n(self) -> int:
         self._flush()

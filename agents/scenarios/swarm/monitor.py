@@ -3,6 +3,9 @@
 Every ``sample_every`` seconds it asks the ``simulation`` device for every robot's true pose, checks
 that no two robots overlap, follows the spread (mean nearest-neighbour distance), merges the agents'
 ``swarm_stats`` and after ``duration`` simulated seconds publishes the verdict as an ``outcome``.
+The judged run begins when every watched robot's agent has reported once (a crowd of agents takes a
+while to start): the duration counts from then, and each agent's latencies from its first report
+after then, so the p99 is that of the running swarm, not of its start-up.
 With a ``neighbourhood`` radius it also listens to every cell's broadcasts and judges delivery on
 ground truth (:class:`.delivery.NeighbourhoodDelivery`: every receiver within the radius of the
 sender at send time must have received it).
@@ -14,6 +17,7 @@ import asyncio
 import logging
 import math
 import time
+from collections import deque
 from collections.abc import Sequence
 
 import numpy as np
@@ -44,7 +48,9 @@ class SwarmMonitor(Agent):
     ``duration`` simulated seconds it publishes ``Outcome("verdict", "swarm", ok=..., final=True)``:
     ok when there was no overlap, the delivery ratio is at least ``min_delivery`` percent, the p99
     latency at most ``max_p99_ms`` and every robot's agent reported. ``robots`` is a count (robots
-    ``<prefix>0`` .. ``<prefix>N-1``) or a list of robot ids.
+    ``<prefix>0`` .. ``<prefix>N-1``) or a list of robot ids. Every ``log_every`` seconds it logs the
+    figures so far (not ``report_every``: that is the swarm agents' broadcast period, which a
+    scenario's arguments give every agent that takes it).
 
     With ``neighbourhood`` R > 0 (the agents' own radius) the delivery ratio is the ground-truth
     one of :class:`.delivery.NeighbourhoodDelivery` (``settle`` s at either end of each receiver's
@@ -68,7 +74,7 @@ class SwarmMonitor(Agent):
         max_p99_ms: float = 50.0,
         simulation: str = "sim",
         startup_timeout: float = 60.0,
-        report_every: float = 10.0,
+        log_every: float = 10.0,
         neighbourhood: float = 0.0,
         settle: float = 1.0,
     ):
@@ -91,8 +97,10 @@ class SwarmMonitor(Agent):
         self.max_p99_ms = float(max_p99_ms)
         self.sim_node = simulation
         self.startup_timeout = float(startup_timeout)
-        self.report_every = float(report_every)
+        self.log_every = float(log_every)
         self.stats: dict[str, dict] = {}  # sender -> its latest swarm_stats body
+        self.window_from: float | None = None  # wall time the judged run began (every agent reported)
+        self.base: dict[str, dict] = {}  # sender -> its first swarm_stats body of the judged run
         self.samples = 0
         self.overlaps = 0  # pairs found overlapping, summed over samples
         self.closest = math.inf  # smallest centre distance seen, m
@@ -104,6 +112,7 @@ class SwarmMonitor(Agent):
         self.neighbourhood = float(neighbourhood)
         self.delivery = NeighbourhoodDelivery(self.robots, self.neighbourhood, settle) if neighbourhood else None
         self._sends: Subscription | None = None
+        self._sent: deque[tuple[str, str, int, float]] = deque()  # from Zenoh's thread, for the loop
 
     async def created(self) -> None:
         self.subscribe(STATS_SERVICE, self._on_stats)
@@ -117,18 +126,29 @@ class SwarmMonitor(Agent):
                 self.id,
                 keyexpr=f"svc/{SendPosition.SERVICE}/*/*",
                 arrival=True,
+                on_thread=True,  # every broadcast of the swarm: no loop wake-up for each
             )
 
-    def _on_send(self, msg: Message, arrived: float) -> None:
+    def _on_send(self, msg: Message, arrived: float) -> None:  # Zenoh's thread
         # the send time is when the broadcast reached this session (Zenoh's thread), not when the
         # loop served it: a loop busy starting a crowd serves it seconds later, after receivers that
         # started meanwhile, which could not have had it, began to listen
         seq = sequence(msg.conversation)
-        if seq is not None and self.delivery is not None:
-            self.delivery.sent(msg.sender, msg.body.robot, seq, arrived)
+        if seq is not None:
+            self._sent.append((msg.sender, msg.body.robot, seq, arrived))  # atomic: drained by the loop
+
+    def _drain_sent(self) -> None:  # the host's loop
+        """Account the broadcasts queued by :meth:`_on_send`."""
+        if self.delivery is None:
+            return
+        q = self._sent
+        for _ in range(len(q)):
+            self.delivery.sent(*q.popleft())
 
     def _on_stats(self, msg: Message) -> None:
         if isinstance(msg.body, dict) and isinstance(msg.body.get("latency"), dict):
+            if self.window_from is not None and msg.sender not in self.base:
+                self.base[msg.sender] = msg.body  # its latencies count from here
             self.stats[msg.sender] = msg.body
 
     def _simulation(self):  # a worker thread
@@ -145,7 +165,24 @@ class SwarmMonitor(Agent):
             ) from None
         finally:
             node.close()
+        self._await_reports()
         return sim
+
+    def _await_reports(self) -> None:  # a worker thread
+        """Open the judged run once every watched robot's agent has reported (or after
+        ``startup_timeout``, with a warning)."""
+        deadline = time.monotonic() + self.startup_timeout
+        while len(self.stats) < len(self.robots) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        if len(self.stats) < len(self.robots):
+            log.warning(
+                "%s: %d of %d agents reported within %g s; judging from now",
+                self.id,
+                len(self.stats),
+                len(self.robots),
+                self.startup_timeout,
+            )
+        self.window_from = time.time()
 
     async def poses(self, sim) -> np.ndarray:
         """(n, 2) true positions of the watched robots (one ``get_poses``: one simulated instant)."""
@@ -167,14 +204,19 @@ class SwarmMonitor(Agent):
         self.spread.append((t, float(nn.mean())))
 
     def merged(self) -> tuple[int, int, LatencyHistogram, int]:
-        """(received, expected, latency histogram, reporting agents) over the latest stats."""
+        """(received, expected, latency histogram, reporting agents) over the latest stats; the
+        latencies of an agent that reported in the judged run count from its first report there."""
         got = want = 0
         hist = LatencyHistogram()
-        for s in self.stats.values():
+        for sender, s in self.stats.items():
             try:
                 got += int(s.get("received", 0))
                 want += int(s.get("expected", 0))
-                hist.merge(LatencyHistogram.from_dict(s["latency"]))
+                h = LatencyHistogram.from_dict(s["latency"])
+                base = self.base.get(sender)
+                if base is not None and base is not s:
+                    h.subtract(LatencyHistogram.from_dict(base["latency"]))
+                hist.merge(h)
             except (TypeError, ValueError) as e:
                 log.warning("%s: ignored bad swarm_stats: %s", self.id, e)
         return got, want, hist, len(self.stats)
@@ -220,7 +262,7 @@ class SwarmMonitor(Agent):
     async def body(self) -> None:
         sim = await asyncio.to_thread(self._simulation)
         t0 = sim.latest.t
-        next_report = clock().now() + self.report_every
+        next_report = clock().now() + self.log_every
         while True:
             started = clock().now()
             t = sim.latest.t
@@ -233,14 +275,16 @@ class SwarmMonitor(Agent):
             else:
                 self.check(xy, t)
                 if self.delivery is not None:
+                    self._drain_sent()
                     self.delivery.truth(0.5 * (w0 + w1), xy)
             if t - t0 >= self.duration:
+                self._drain_sent()
                 self.verdict = self.judge(t - t0)
                 self.publish(Outcome.SERVICE, self.verdict)
                 log.info("%s: %s", self.id, self.verdict.text)
                 return
             if clock().now() >= next_report:
-                next_report += self.report_every
+                next_report += self.log_every
                 log.info("%s: %s", self.id, self.judge(t - t0, final=False).text)
             await clock().asleep_until(started + self.sample_every)
 

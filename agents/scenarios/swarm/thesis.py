@@ -371,18 +371,6 @@ class ThesisSwarmMonitor(SwarmMonitor):
                     f"{self.id}: robot {r} has no localize pose {r}:{LOCALIZE} within {self.startup_timeout:g} s"
                 ) from None
             self.estimates.append(self._est_node.device(f"{r}:{LOCALIZE}"))
-        # A hundred filters and agents take a while to start: the run's duration counts from when
-        # every watched robot's agent has reported (its swarm_stats), not from the monitor's start.
-        while len(self.stats) < len(self.robots) and time.monotonic() < deadline:
-            time.sleep(0.2)
-        if len(self.stats) < len(self.robots):
-            log.warning(
-                "%s: %d of %d agents reported within %g s; judging from now",
-                self.id,
-                len(self.stats),
-                len(self.robots),
-                self.startup_timeout,
-            )
         return sim
 
     async def poses(self, sim) -> np.ndarray:
