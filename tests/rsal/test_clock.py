@@ -119,3 +119,49 @@ def test_sim_clock_follows_a_real_simulation_at_its_speed_up(procs, port, fabric
         assert 3.0 < c.speed < 7.0
     finally:
         c.close()
+
+
+def test_an_async_sleeper_replans_when_the_simulation_speeds_up():
+    c = SimClock()
+
+    async def main() -> tuple[float, float, float]:
+        async def feed() -> None:  # 10 samples per wall second: real time for 0.5 s, then 20 times that
+            t = 0.0
+            for k in range(400):
+                await asyncio.sleep(0.02)
+                t += 0.02 if k < 25 else 0.4
+                c.feed(t)
+
+        c.feed(0.0)
+        feeder = asyncio.ensure_future(feed())
+        await asyncio.sleep(0.2)  # the speed measured: ~1
+        start = time.monotonic()
+        await c.asleep_until(4.0)  # planned at ~1x: ~3.8 wall s; at 20x after 0.3 s: ~0.5 s in all
+        woke = c.now()
+        feeder.cancel()
+        return time.monotonic() - start, woke, c.speed
+
+    took, woke, speed = asyncio.run(asyncio.wait_for(main(), 20.0))
+    assert woke >= 4.0  # never early
+    assert speed > 10  # it did speed up
+    assert took < 2.0  # woken to plan again, not left sleeping out the real-time plan
+
+
+def test_an_async_sleeper_on_a_paused_simulation_wakes_after_it_resumes():
+    c = SimClock()
+
+    async def main() -> float:
+        c.feed(0.0)
+        c.feed(1.0, paused=True)
+        sleeper = asyncio.ensure_future(c.asleep_until(1.5))
+        await asyncio.sleep(0.3)
+        assert not sleeper.done()  # paused: the clock stands still
+        for k in range(1, 30):
+            c.feed(1.0 + 0.05 * k)
+            await asyncio.sleep(0.02)
+            if sleeper.done():
+                break
+        await asyncio.wait_for(sleeper, 2.0)
+        return c.now()
+
+    assert asyncio.run(asyncio.wait_for(main(), 10.0)) >= 1.5
