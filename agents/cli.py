@@ -83,6 +83,7 @@ def run_agent(args: argparse.Namespace) -> int:
                 report_every=args.report_every,
                 duration=args.duration,
                 name_agents=False,
+                steady_gc=True,
             )
         )
     except ValueError as e:  # the session could not be opened

@@ -106,10 +106,14 @@ async def serve_agents(
     duration: float | None = None,
     tolerate_failures: bool = False,
     name_agents: bool = True,
+    steady_gc: bool = False,
 ) -> int:
     """Run ``agents`` on one host until SIGTERM/SIGINT, ``duration`` or their own end; returns the
     exit code. ``tag`` prefixes progress lines (``[agent]``, ``[host NAME]``); ``fail(line)`` reports
-    an error line; ``name_agents`` puts the agent id in front of its errors."""
+    an error line; ``name_agents`` puts the agent id in front of its errors. ``steady_gc`` (a process
+    of its own: the agent-host processes) tunes the garbage collector and freezes what start-up left
+    alive (:mod:`rsal.gcpause`), and the progress lines give the collector's longest pause."""
+    from rsal import gcpause
     from rsal.client import Fabric
     from rsal.clock import ENV as clock_env
     from rsal.clock import clock, sim_time_from_env
@@ -143,6 +147,9 @@ async def serve_agents(
             session.close()
             return 1
     clk = clock()
+    gc_watch = gcpause.GcWatch() if steady_gc else None
+    if steady_gc:
+        gcpause.tune()
     async with AgentHost(session, own_session=True) as host:
         fabrics: dict[str, Fabric] = {}
 
@@ -193,6 +200,9 @@ async def serve_agents(
         for a in running:
             robot = f" on robot {a.robot}" if a.robot else ""
             print(f"{tag} {a.id} running: {type(a).__name__}{robot}, token agents/{a.id}", flush=True)
+        if steady_gc:  # start-up's objects out of every later collection's way
+            frozen = await asyncio.to_thread(gcpause.freeze_startup)
+            print(f"{tag} {len(running)} agent(s) started; {frozen} objects frozen out of the gc's way", flush=True)
         killed = {a.id: asyncio.ensure_future(host.wait_killed(a)) for a in running}
         t0 = clk.now()
         reason = ""
@@ -222,7 +232,11 @@ async def serve_agents(
                             print(f"{tag} {a.id} t={clk.now() - t0:6.1f} s  {_status(a)}", flush=True)
                 else:
                     n = len(running) - len(ended)
-                    print(f"{tag} t={clk.now() - t0:6.1f} s  {n}/{len(running)} agents running", flush=True)
+                    gcs = ""
+                    if gc_watch is not None:
+                        count, longest, total = gc_watch.take()
+                        gcs = f", {count} gc pause(s), longest {1000 * longest:.0f} ms, {1000 * total:.0f} ms in all"
+                    print(f"{tag} t={clk.now() - t0:6.1f} s  {n}/{len(running)} agents running{gcs}", flush=True)
         stopping.cancel()
         await asyncio.gather(*(host.kill(a) for a in running))
         for k in killed.values():
@@ -294,6 +308,7 @@ def main(argv: list[str] | None = None) -> int:
                 fail=fail,
                 report_every=args.report_every,
                 tolerate_failures=args.tolerate_failures,
+                steady_gc=True,
             )
         )
     except ValueError as e:  # the session could not be opened
