@@ -467,11 +467,10 @@ class Amcl:
             self._cones = g.derived("amcl.cones", lambda: ConeMap(~g.free, g.resolution, g.origin))
         return self._cones
 
-    def _cone_log_likelihood(self, z, bearings, origins, rays: int, range_max: float) -> np.ndarray:
-        """Log-likelihood of a sonar scan for every particle, ``(n,)``, under the cone beam model
-        (:mod:`.conebeam`); ``bearings`` holds ``rays`` entries per reading ``z``."""
-        cm, p, q = self._cone_map(), self.params, self.particles
-        return cone_beam_jit(
+    def _beam_args(self, z, bearings, origins, rays: int) -> tuple:
+        """The particles and one scan's beams, as the cone kernels take them (contiguous float64)."""
+        q = self.particles
+        return (
             np.ascontiguousarray(q[:, 0]),
             np.ascontiguousarray(q[:, 1]),
             np.ascontiguousarray(q[:, 2]),
@@ -480,6 +479,14 @@ class Amcl:
             np.ascontiguousarray(bearings, dtype=np.float64),
             np.ascontiguousarray(z, dtype=np.float64),
             int(rays),
+        )
+
+    def _cone_log_likelihood(self, z, bearings, origins, rays: int, range_max: float) -> np.ndarray:
+        """Log-likelihood of a sonar scan for every particle, ``(n,)``, under the cone beam model
+        (:mod:`.conebeam`); ``bearings`` holds ``rays`` entries per reading ``z``."""
+        cm, p = self._cone_map(), self.params
+        return cone_beam_jit(
+            *self._beam_args(z, bearings, origins, rays),
             cm.blocked,
             cm.clear,
             cm.resolution,
@@ -494,17 +501,10 @@ class Amcl:
     def _landmark_log_likelihood(self, z, bearings, origins, rays: int, range_max: float, use) -> np.ndarray:
         """As :meth:`_cone_log_likelihood`, the readings ``use`` scored against the map and the
         declared neighbours' bodies (:mod:`.landmarks`)."""
-        cm, p, q = self._cone_map(), self.params, self.particles
+        cm, p = self._cone_map(), self.params
         d = self.obstacles
         return landmark_beam_jit(
-            np.ascontiguousarray(q[:, 0]),
-            np.ascontiguousarray(q[:, 1]),
-            np.ascontiguousarray(q[:, 2]),
-            np.ascontiguousarray(origins[:, 0], dtype=np.float64),
-            np.ascontiguousarray(origins[:, 1], dtype=np.float64),
-            np.ascontiguousarray(bearings, dtype=np.float64),
-            np.ascontiguousarray(z, dtype=np.float64),
-            int(rays),
+            *self._beam_args(z, bearings, origins, rays),
             np.ascontiguousarray(use, dtype=np.bool_),
             np.ascontiguousarray(d[:, 0]),
             np.ascontiguousarray(d[:, 1]),
