@@ -104,10 +104,16 @@ class Received:
         cut = np.nonzero(np.diff(k) != 1)[0]
         starts = k[np.r_[0, cut + 1]]
         ends = k[np.r_[cut, len(k) - 1]]
-        out: dict[str, list[int]] = {}
-        for s, e in zip(starts.tolist(), ends.tolist(), strict=True):
-            out.setdefault(_names[s >> _SEQ_BITS], []).extend((s & _SEQ_MASK, e & _SEQ_MASK))
-        return out
+        flat = np.empty(2 * len(starts), dtype=np.int64)
+        flat[0::2] = starts & _SEQ_MASK
+        flat[1::2] = ends & _SEQ_MASK
+        senders = starts >> _SEQ_BITS  # sorted: each sender's runs are adjacent
+        b = np.r_[0, np.nonzero(np.diff(senders))[0] + 1, len(senders)]
+        fl = flat.tolist()
+        return {
+            _names[c]: fl[2 * i : 2 * j]
+            for c, i, j in zip(senders[b[:-1]].tolist(), b[:-1].tolist(), b[1:].tolist(), strict=True)
+        }
 
 
 @dataclass
