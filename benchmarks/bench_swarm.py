@@ -90,8 +90,12 @@ async def _host(args) -> dict:
     from agents.runtime import AgentHost
     from agents.scenarios.swarm import LatencyHistogram, SwarmAgent, SwarmMonitor
     from agents.services import SendPosition
+    from rsal import gcpause
     from rsal.client import Fabric
     from rsal.transport import TransportArgs
+
+    if args.steady_gc:  # as an agent-host process (agents.hostproc) does
+        gcpause.tune()
 
     class BareAgent(SwarmAgent):
         """Broadcasts a fixed pose; no robot (the messaging baseline)."""
@@ -126,7 +130,9 @@ async def _host(args) -> dict:
         t0 = time.perf_counter()
         mon = None
         if near and args.index == 0:  # the ground-truth judge, listening to every cell before the first broadcast
-            mon = SwarmMonitor("monitor", robots=n, duration=1e9, neighbourhood=near, startup_timeout=300)
+            mon = SwarmMonitor(
+                "monitor", robots=n, duration=1e9, neighbourhood=near, startup_timeout=300, await_reports=False
+            )
             await host.start(mon)
         kw = {"neighbourhood": near, "cell_size": args.cell_size} if near else {}
         if near:
@@ -140,6 +146,8 @@ async def _host(args) -> dict:
         ]
         await asyncio.gather(*(host.start(a) for a in agents))
         startup = time.perf_counter() - t0
+        if args.steady_gc:
+            gcpause.freeze_startup()
         if sync is not None:  # every host measures the same window: all started first
             await _barrier(sync, "ready", args.index, args.hosts, args.host_timeout)
         sim = None
@@ -222,6 +230,7 @@ async def _host(args) -> dict:
                     await asyncio.sleep(0.2)
                     stats.update(json.loads(f.read_text()))
                 t_j = time.perf_counter()
+                mon.account_sends()
                 res = mon.delivery.result(stats, max_missing=40)
                 got, want = res.received, res.expected
                 judge_s = time.perf_counter() - t_j
@@ -337,6 +346,7 @@ def _run_host(
             cmd += ["--host-timeout", str(args.host_timeout), "--wildcard-cells", str(args.wildcard_cells)]
             cmd += [] if args.pubcache else ["--no-pubcache"]
             cmd += [] if args.loopback else ["--no-loopback"]
+            cmd += [] if args.steady_gc else ["--no-steady-gc"]
             procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT))
             if mode == "bare" and k == 0:
                 time.sleep(1.0)  # the first host listens; the others connect to it
@@ -514,6 +524,12 @@ def main() -> None:
         dest="loopback",
         action="store_false",
         help="near form: a host's own broadcasts reach its cell subscription through Zenoh (as before), not in process",
+    )
+    ap.add_argument(
+        "--no-steady-gc",
+        dest="steady_gc",
+        action="store_false",
+        help="hosts keep the garbage collector's defaults (as before), not the agent hosts' settings (rsal/gcpause.py)",
     )
     ap.add_argument("--index", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--first", type=int, default=0, help=argparse.SUPPRESS)

@@ -48,7 +48,9 @@ class SwarmMonitor(Agent):
     ``duration`` simulated seconds it publishes ``Outcome("verdict", "swarm", ok=..., final=True)``:
     ok when there was no overlap, the delivery ratio is at least ``min_delivery`` percent, the p99
     latency at most ``max_p99_ms`` and every robot's agent reported. ``robots`` is a count (robots
-    ``<prefix>0`` .. ``<prefix>N-1``) or a list of robot ids. Every ``log_every`` seconds it logs the
+    ``<prefix>0`` .. ``<prefix>N-1``) or a list of robot ids. The judged run begins when every
+    robot's agent has reported (module docstring), or at once with ``await_reports=False`` (agents
+    that send no ``swarm_stats``, as in a benchmark). Every ``log_every`` seconds it logs the
     figures so far (not ``report_every``: that is the swarm agents' broadcast period, which a
     scenario's arguments give every agent that takes it).
 
@@ -77,6 +79,7 @@ class SwarmMonitor(Agent):
         log_every: float = 10.0,
         neighbourhood: float = 0.0,
         settle: float = 1.0,
+        await_reports: bool = True,
     ):
         super().__init__(agent_id, period=sample_every, robot=robot)
         if isinstance(robots, bool) or not isinstance(robots, (int, list, tuple)):
@@ -97,6 +100,7 @@ class SwarmMonitor(Agent):
         self.max_p99_ms = float(max_p99_ms)
         self.sim_node = simulation
         self.startup_timeout = float(startup_timeout)
+        self.await_reports = bool(await_reports)
         self.log_every = float(log_every)
         self.stats: dict[str, dict] = {}  # sender -> its latest swarm_stats body
         self.window_from: float | None = None  # wall time the judged run began (every agent reported)
@@ -137,8 +141,9 @@ class SwarmMonitor(Agent):
         if seq is not None:
             self._sent.append((msg.sender, msg.body.robot, seq, arrived))  # atomic: drained by the loop
 
-    def _drain_sent(self) -> None:  # the host's loop
-        """Account the broadcasts queued by :meth:`_on_send`."""
+    def account_sends(self) -> None:  # the host's loop
+        """Account the broadcasts queued by :meth:`_on_send` (each sample does; call it before
+        judging ``delivery`` yourself)."""
         if self.delivery is None:
             return
         q = self._sent
@@ -165,7 +170,10 @@ class SwarmMonitor(Agent):
             ) from None
         finally:
             node.close()
-        self._await_reports()
+        if self.await_reports:
+            self._await_reports()
+        else:
+            self.window_from = time.time()
         return sim
 
     def _await_reports(self) -> None:  # a worker thread
@@ -275,10 +283,10 @@ class SwarmMonitor(Agent):
             else:
                 self.check(xy, t)
                 if self.delivery is not None:
-                    self._drain_sent()
+                    self.account_sends()
                     self.delivery.truth(0.5 * (w0 + w1), xy)
             if t - t0 >= self.duration:
-                self._drain_sent()
+                self.account_sends()
                 self.verdict = self.judge(t - t0)
                 self.publish(Outcome.SERVICE, self.verdict)
                 log.info("%s: %s", self.id, self.verdict.text)
