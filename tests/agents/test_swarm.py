@@ -132,6 +132,31 @@ def test_monitor_counts_latency_from_each_agents_first_report_of_the_judged_run(
     assert v.ok and "p99 latency 5 ms" in v.text, v.text  # the upper edge of 4 ms's bin
 
 
+def test_monitor_opens_the_judged_run_when_the_last_agent_reports_and_skips_a_bad_first_report():
+    m = SwarmMonitor("mon", robots=2, duration=10, startup_timeout=30)
+    good = {"received": 1, "expected": 1, "latency": LatencyHistogram().to_dict()}
+
+    def report(sender: str, body: dict) -> None:
+        m._on_stats(Message(STATS_SERVICE, sender, "", 0.0, body))
+
+    async def run() -> tuple[float | None, float | None]:
+        m._all_reported = asyncio.Event()
+        waiting = asyncio.create_task(m._await_reports())
+        report("s0", good)
+        await asyncio.sleep(0)
+        before = m.window_from  # one of two reported: still waiting
+        report("s1", good)
+        await asyncio.wait_for(waiting, 5.0)  # not the 30 s start-up timeout
+        return before, m.window_from
+
+    before, opened = asyncio.run(run())
+    assert before is None and opened is not None
+    report("s0", {"received": 1, "expected": 1, "latency": {"bins": "x"}})  # unparseable: not its base
+    assert "s0" not in m.base and m.stats["s0"] is good
+    report("s0", good)
+    assert "s0" in m.base and m.merged()[2].n == 0  # its base minus itself: nothing yet
+
+
 def test_disperse_steers_away_from_neighbours_until_a_wall_is_in_sight():
     me = Position(0.0, 0.0, 0.0)
     h = away_from(me, [Position(1.0, 0.0), Position(0.0, 3.0), Position(50.0, 50.0)], radius=4.0)

@@ -104,7 +104,7 @@ class SwarmMonitor(Agent):
         self.log_every = float(log_every)
         self.stats: dict[str, dict] = {}  # sender -> its latest swarm_stats body
         self.window_from: float | None = None  # wall time the judged run began (every agent reported)
-        self.base: dict[str, dict] = {}  # sender -> its first swarm_stats body of the judged run
+        self.base: dict[str, LatencyHistogram] = {}  # sender -> its latencies at its first report of the judged run
         self.samples = 0
         self.overlaps = 0  # pairs found overlapping, summed over samples
         self.closest = math.inf  # smallest centre distance seen, m
@@ -117,8 +117,10 @@ class SwarmMonitor(Agent):
         self.delivery = NeighbourhoodDelivery(self.robots, self.neighbourhood, settle) if neighbourhood else None
         self._sends: Subscription | None = None
         self._sent: deque[tuple[str, str, int, float]] = deque()  # from Zenoh's thread, for the loop
+        self._all_reported: asyncio.Event | None = None  # set (on the loop) when every agent reported
 
     async def created(self) -> None:
+        self._all_reported = asyncio.Event()
         self.subscribe(STATS_SERVICE, self._on_stats)
         if self.delivery is not None:  # every cell's broadcasts: the send times of what is owed
             services = self._require_host().services
@@ -153,8 +155,14 @@ class SwarmMonitor(Agent):
     def _on_stats(self, msg: Message) -> None:
         if isinstance(msg.body, dict) and isinstance(msg.body.get("latency"), dict):
             if self.window_from is not None and msg.sender not in self.base:
-                self.base[msg.sender] = msg.body  # its latencies count from here
+                try:  # its latencies count from here (parsed once, not at every judging)
+                    self.base[msg.sender] = LatencyHistogram.from_dict(msg.body["latency"])
+                except (TypeError, ValueError) as e:
+                    log.warning("%s: ignored bad swarm_stats from %s: %s", self.id, msg.sender, e)
+                    return
             self.stats[msg.sender] = msg.body
+            if len(self.stats) == len(self.robots) and self._all_reported is not None:
+                self._all_reported.set()
 
     def _simulation(self):  # a worker thread
         self.fabric = Fabric(self._require_host().session, own_session=False)
@@ -170,19 +178,17 @@ class SwarmMonitor(Agent):
             ) from None
         finally:
             node.close()
-        if self.await_reports:
-            self._await_reports()
-        else:
-            self.window_from = time.time()
         return sim
 
-    def _await_reports(self) -> None:  # a worker thread
+    async def _await_reports(self) -> None:
         """Open the judged run once every watched robot's agent has reported (or after
         ``startup_timeout``, with a warning)."""
-        deadline = time.monotonic() + self.startup_timeout
-        while len(self.stats) < len(self.robots) and time.monotonic() < deadline:
-            time.sleep(0.2)
-        if len(self.stats) < len(self.robots):
+        if self.await_reports and self._all_reported is not None and len(self.stats) < len(self.robots):
+            try:
+                await asyncio.wait_for(self._all_reported.wait(), self.startup_timeout)
+            except TimeoutError:
+                pass
+        if self.await_reports and len(self.stats) < len(self.robots):
             log.warning(
                 "%s: %d of %d agents reported within %g s; judging from now",
                 self.id,
@@ -222,8 +228,8 @@ class SwarmMonitor(Agent):
                 want += int(s.get("expected", 0))
                 h = LatencyHistogram.from_dict(s["latency"])
                 base = self.base.get(sender)
-                if base is not None and base is not s:
-                    h.subtract(LatencyHistogram.from_dict(base["latency"]))
+                if base is not None:  # its first report of the judged run minus itself is empty
+                    h.subtract(base)
                 hist.merge(h)
             except (TypeError, ValueError) as e:
                 log.warning("%s: ignored bad swarm_stats: %s", self.id, e)
@@ -269,6 +275,7 @@ class SwarmMonitor(Agent):
 
     async def body(self) -> None:
         sim = await asyncio.to_thread(self._simulation)
+        await self._await_reports()
         t0 = sim.latest.t
         next_report = clock().now() + self.log_every
         while True:
