@@ -23,9 +23,11 @@ are told apart by their envelope (sender, conversation, time) and a repeat is dr
 
 With ``loopback`` the broadcasts of the host's own agents (``Services.publish`` in the same
 process) reach the subscription in process, as the :class:`~agents.services.Message` they were,
-on the host's loop when they are published; their copies through Zenoh are turned away by the key's
-sender chunk before decoding. A swarm host of 500 robots hears its own agents in about half of what
-it receives: each was a trip through Zenoh's local routing, a callback thread and a decode.
+on the host's loop when they are published, and its subscribers take only other sessions' samples
+(``allowed_origin=REMOTE``): Zenoh does not route the host's own puts to them at all (the key's
+sender chunk still turns away a local sender's copy, should one come). A swarm host of 500 robots
+hears its own agents in about half of what it receives: each was a trip through Zenoh's local
+routing, a callback thread and a decode (later a callback that only rejected it).
 """
 
 from __future__ import annotations
@@ -142,7 +144,9 @@ class CellSubscription:
 
     def _subscribe(self, keyexpr: str) -> Subscription:
         s = self._services
-        return Subscription(s, self.service, self._on_message, None, self.owner, keyexpr, self._accept)
+        return Subscription(
+            s, self.service, self._on_message, None, self.owner, keyexpr, self._accept, remote_only=self.loopback
+        )
 
     def _switched(self, old: list[Subscription]) -> None:
         """The new form's subscribers are declared: keep the old ones for :attr:`grace` seconds

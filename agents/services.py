@@ -286,7 +286,8 @@ class Subscription:
     time ``t`` the sample reached this subscriber (on Zenoh's thread: when the session received it,
     however long the host's loop then took to serve it). With ``on_thread`` the callback runs on
     Zenoh's thread itself, not the host's loop (it must be thread-safe and quick: e.g. append to a
-    queue that the agent drains), which spares a busy receiver a loop wake-up per message."""
+    queue that the agent drains), which spares a busy receiver a loop wake-up per message. With
+    ``remote_only`` it receives only other sessions' samples (``zenoh.Locality.REMOTE``)."""
 
     def __init__(
         self,
@@ -300,6 +301,7 @@ class Subscription:
         *,
         arrival: bool = False,
         on_thread: bool = False,
+        remote_only: bool = False,
     ):
         self.service = service
         self.owner = owner
@@ -312,7 +314,12 @@ class Subscription:
         self._arrival = arrival
         self._on_thread = on_thread
         self.keyexpr = keyexpr or service_key(service)
-        self._sub = services.session.declare_subscriber(self.keyexpr, self._on_sample)
+        if remote_only:  # this session's own puts are not routed to it at all (no callback to reject them)
+            self._sub = services.session.declare_subscriber(
+                self.keyexpr, self._on_sample, allowed_origin=zenoh.Locality.REMOTE
+            )
+        else:
+            self._sub = services.session.declare_subscriber(self.keyexpr, self._on_sample)
         self.closed = False
 
     def _on_sample(self, sample: zenoh.Sample) -> None:  # a Zenoh thread: decode, then hand over

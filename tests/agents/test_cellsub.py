@@ -301,6 +301,8 @@ def test_a_hosts_own_broadcasts_reach_its_loopback_subscription_once_in_process(
     assert mine == list(range(20))  # each once, in order, none from the unwatched cell
     assert sub.local_received == 20
     assert "me" in recv_host.services.local_senders
+    # nor did their Zenoh copies reach its subscriber's callback: that takes other sessions' only
+    assert sum(z.skipped for z in sub._subs.values()) == 0
     lt.run(_call(sub.close))
     assert recv_host.services._loopback.get("send_position") == []
 
