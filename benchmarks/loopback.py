@@ -19,8 +19,8 @@ def session(listen: str | None = None, connect: str | None = None):
     c = zenoh.Config()
     c.insert_json5("mode", '"peer"')
     c.insert_json5("scouting/multicast/enabled", "false")
-    if listen:
-        c.insert_json5("listen/endpoints", json.dumps([listen]))
+    # a peer that only connects would listen on Zenoh's default, every interface
+    c.insert_json5("listen/endpoints", json.dumps([listen or "tcp/127.0.0.1:0"]))
     if connect:
         c.insert_json5("connect/endpoints", json.dumps([connect]))
     return zenoh.open(c)

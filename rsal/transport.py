@@ -6,11 +6,17 @@ device server listens on ``tcp/127.0.0.1:7447`` (or, if another server already d
 loopback port and connects to 7447) and every other process connects to ``tcp/127.0.0.1:7447``;
 peers then find each other by gossip. Multicast scouting stays off unless a config file turns it
 on (only inside network namespaces the tests create).
+
+A peer that only connects still listens, so that the peers it learns of by gossip can reach it
+directly; Zenoh's own default for that is every interface (``tcp/[::]:0``). When every endpoint it
+connects to is on this machine (loopback or a Unix socket) it listens on ``tcp/127.0.0.1:0``
+instead: a fabric on loopback opens no port to the network.
 """
 
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import json
 import os
 import socket
@@ -22,6 +28,7 @@ from .errnet import ENDPOINT_FORM, zenoh_summary, zenoh_text
 
 __all__ = [
     "DEFAULT_ENDPOINT",
+    "LOOPBACK_ANY",
     "ZENOH_RUNTIME",
     "TransportArgs",
     "add_transport_args",
@@ -32,6 +39,8 @@ __all__ = [
 ]
 
 DEFAULT_ENDPOINT = os.environ.get("RSAL_ENDPOINT", "tcp/127.0.0.1:7447")
+#: where a peer that connects only to this machine listens (any free loopback port)
+LOOPBACK_ANY = "tcp/127.0.0.1:0"
 
 #: Zenoh's runtimes for the sessions of this process (the ``ZENOH_RUNTIME`` environment variable,
 #: read once, when the first session opens; a value set by the user wins). With Zenoh's built-in
@@ -117,6 +126,20 @@ def _insert_endpoints(conf: zenoh.Config, what: str, endpoints: list[str]) -> No
         raise ValueError(f"bad --{what} endpoint {' '.join(bad)!r} ({zenoh_text(e)}); {ENDPOINT_FORM}") from None
 
 
+def _on_this_machine(endpoint: str) -> bool:
+    """Whether ``endpoint`` (``proto/address[?meta][#config]``) is a loopback address or a Unix socket."""
+    proto, _, address = endpoint.partition("/")
+    if proto.startswith("unixsock"):
+        return True
+    host = address.split("?", 1)[0].split("#", 1)[0].rsplit(":", 1)[0].strip("[]")
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:  # a name: it may be another machine
+        return False
+
+
 def _endpoint_ok(what: str, endpoint: str) -> bool:
     try:
         zenoh.Config().insert_json5(f"{what}/endpoints", json.dumps([endpoint]))
@@ -144,10 +167,12 @@ def make_config(args: TransportArgs | None = None, *, server: bool = False) -> z
         if server and port_free(DEFAULT_ENDPOINT):
             listen = [DEFAULT_ENDPOINT]
         elif server:
-            listen = ["tcp/127.0.0.1:0"]
+            listen = [LOOPBACK_ANY]
             connect = [DEFAULT_ENDPOINT]
         else:
             connect = [DEFAULT_ENDPOINT]
+    if not a.config and not listen and connect and (a.mode or "peer") == "peer" and all(map(_on_this_machine, connect)):
+        listen = [LOOPBACK_ANY]  # not Zenoh's every-interface default: see the module docstring
     if listen:
         _insert_endpoints(conf, "listen", listen)
     if connect:

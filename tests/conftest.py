@@ -33,8 +33,8 @@ def stock_session(listen: str | None = None, connect: str | None = None):
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")
-    if listen:
-        conf.insert_json5("listen/endpoints", json.dumps([listen]))
+    # a peer that only connects would listen on Zenoh's default, every interface
+    conf.insert_json5("listen/endpoints", json.dumps([listen or "tcp/127.0.0.1:0"]))
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps([connect]))
     return zenoh.open(conf)

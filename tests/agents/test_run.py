@@ -372,6 +372,7 @@ def test_a_forged_outcome_from_a_stranger_changes_nothing(procs, tmp_path):
     c = zenoh.Config()
     c.insert_json5("scouting/multicast/enabled", "false")
     c.insert_json5("connect/endpoints", json.dumps([ep]))
+    c.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
     with zenoh.open(c) as intruder:
         for i in range(3):
             body = Outcome("caught", f"ghost{i}", f"prey ghost{i} caught", ok=True, final=(i == 0))

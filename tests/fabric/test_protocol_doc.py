@@ -63,6 +63,7 @@ def session(server):
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
     with zenoh.open(conf) as s:
         wanted = {"rsal/r0/laser/0", "rsal/r0/position2d/0", "rsal/sim/simulation/0"}
 

@@ -175,6 +175,7 @@ import sys, time, zenoh
 conf = zenoh.Config()
 conf.insert_json5("mode", '"peer"')
 conf.insert_json5("connect/endpoints", '["tcp/127.0.0.1:%s"]' % sys.argv[1])
+conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
 conf.insert_json5("scouting/multicast/enabled", "false")
 s = zenoh.open(conf)
 sub = s.declare_subscriber("rsal/**", lambda smp: time.sleep(0.5))

@@ -29,6 +29,7 @@ def stock_session(port: int) -> zenoh.Session:
     cfg = zenoh.Config()
     cfg.insert_json5("mode", '"peer"')
     cfg.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    cfg.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
     cfg.insert_json5("scouting/multicast/enabled", "false")
     return zenoh.open(cfg)
 

@@ -32,3 +32,37 @@ def test_sessions_run_rsals_receive_runtime_unless_the_environment_names_one():
     assert _runtime_of_a_session(env) == ZENOH_RUNTIME
     own = "(rx: (worker_threads: 3))"
     assert _runtime_of_a_session({**env, "ZENOH_RUNTIME": own}) == own
+
+
+def _listen(**kw) -> list[str] | dict:
+    import json
+
+    from rsal.transport import TransportArgs, make_config
+
+    return json.loads(make_config(TransportArgs(**kw)).get_json("listen/endpoints"))
+
+
+def test_a_peer_that_only_connects_on_this_machine_listens_on_loopback_not_every_interface():
+    for ep in ("tcp/127.0.0.1:7447", "tcp/localhost:7447", "tcp/[::1]:7447", "unixsock-stream//tmp/f.sock"):
+        assert _listen(connect=[ep]) == ["tcp/127.0.0.1:0"], ep
+    assert _listen() == ["tcp/127.0.0.1:0"]  # no flags: it connects to the default endpoint
+    assert _listen(connect=["tcp/127.0.0.1:7447"], listen=["tcp/127.0.0.1:7500"]) == ["tcp/127.0.0.1:7500"]
+    # another machine: peers there must reach it, so Zenoh's default (every interface) stays
+    assert "[::]" in str(_listen(connect=["tcp/10.1.2.3:7447"]))
+    assert "[::]" in str(_listen(connect=["tcp/127.0.0.1:7447", "tcp/robot1.lab:7447"]))
+
+
+def test_peers_that_only_connect_to_one_server_on_loopback_still_link_to_each_other_directly():
+    from rsal.transport import TransportArgs, open_session
+    from tests.conftest import free_port, wait_until
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    server = open_session(TransportArgs(listen=[ep]))
+    a = open_session(TransportArgs(connect=[ep]))
+    b = open_session(TransportArgs(connect=[ep]))
+    try:  # each knows the server and the other (by gossip, then its loopback listener)
+        wait_until(lambda: b.info.zid() in set(a.info.peers_zid()), 20, "the two peers to link directly")
+        assert server.info.zid() in set(a.info.peers_zid())
+    finally:
+        for s in (b, a, server):
+            s.close()
