@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # RSAL fabric developer entry point.
 #   ./dev.sh demo [ARGS]   set up .venv if needed, then run the embedded default (rsal demo)
-#   ./dev.sh test [ARGS]   set up .venv and the test tools if needed, then run the whole test suite (pytest)
+#   ./dev.sh test [ARGS]   set up .venv and the test tools if needed, then run the whole test suite (pytest,
+#                          RSAL_TEST_WORKERS test files side by side, 2 unless set; 0: one after another)
 #   ./dev.sh setup         only set up (or refresh) .venv and the compiled kernels
 # The virtual environment lives in .venv/ at the repository root; it is (re)installed whenever
 # pyproject.toml changes. The simulator's and navigation's kernels are compiled into numba's cache
@@ -69,6 +70,9 @@ cmd=${1:-demo}
 case "$cmd" in
   setup) setup ;;
   demo) setup; exec "$VENV/bin/rsal" demo "$@" ;;
-  test) setup; test_tools; exec "$VENV/bin/python" -m pytest "$@" ;;
+  # Test files run side by side (pytest-xdist, each file whole on one worker: its module fixtures
+  # stay shared); the suite mostly waits on simulated time and start-ups, and every test takes
+  # free ports of its own.
+  test) setup; test_tools; exec "$VENV/bin/python" -m pytest -n "${RSAL_TEST_WORKERS:-2}" --dist loadfile "$@" ;;
   *) echo "dev.sh: unknown command '$cmd' (use: demo, test or setup)" >&2; exit 2 ;;
 esac
