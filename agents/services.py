@@ -314,12 +314,9 @@ class Subscription:
         self._arrival = arrival
         self._on_thread = on_thread
         self.keyexpr = keyexpr or service_key(service)
-        if remote_only:  # this session's own puts are not routed to it at all (no callback to reject them)
-            self._sub = services.session.declare_subscriber(
-                self.keyexpr, self._on_sample, allowed_origin=zenoh.Locality.REMOTE
-            )
-        else:
-            self._sub = services.session.declare_subscriber(self.keyexpr, self._on_sample)
+        # remote_only: this session's own puts are not routed to it at all (no callback to reject them)
+        origin = zenoh.Locality.REMOTE if remote_only else zenoh.Locality.ANY
+        self._sub = services.session.declare_subscriber(self.keyexpr, self._on_sample, allowed_origin=origin)
         self.closed = False
 
     def _on_sample(self, sample: zenoh.Sample) -> None:  # a Zenoh thread: decode, then hand over
