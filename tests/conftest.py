@@ -208,3 +208,17 @@ class LoopThread:
         self.loop.call_soon_threadsafe(self.loop.stop)
         self.t.join(5)
         self.loop.close()
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Say why each rerun test failed the first time: the summary's RERUN line names it only, and a
+    test that passes at its rerun is flaky; the reason is what mends it."""
+    reruns = terminalreporter.stats.get("rerun", [])
+    if not reruns:
+        return
+    terminalreporter.section("why the rerun tests failed first")
+    for rep in reruns:
+        text = str(rep.longrepr or "").rstrip().splitlines()
+        terminalreporter.write_line(f"{rep.nodeid}:")
+        for line in text[-25:]:
+            terminalreporter.write_line(f"    {line}")
