@@ -219,6 +219,7 @@ def pytest_terminal_summary(terminalreporter):
     terminalreporter.section("why the rerun tests failed first")
     for rep in reruns:
         text = str(rep.longrepr or "").rstrip().splitlines()
+        here = rep.nodeid.split("::", 1)[0] + ":"  # the test file's own frames: where it waited
         terminalreporter.write_line(f"{rep.nodeid}:")
-        for line in text[-25:]:
+        for line in [ln for ln in text[:-25] if ln.startswith(here)] + text[-25:]:
             terminalreporter.write_line(f"    {line}")

@@ -28,19 +28,30 @@ AGENTS = ("hunter1", "hunter2", "prey0")
 ROBOTS = ("r0", "r1", "r2")  # maps/hunt.world
 
 
-# where a robot is drawn on the map canvas, in page coordinates, and its pose (the page's own transform)
+# where a robot is drawn on the map canvas, in page coordinates, and its pose (the page's own
+# transform); a point under the sticky header (a hunter near the map's top edge) is scrolled to the
+# middle of the window first, so that a press there lands on the map
 ROBOT_ON_CANVAS = """name => {
   const r = state.robots.find(x => x.name === name);
   const [px, py] = toPixel(r.pose[0], r.pose[1]);
   const c = document.querySelector('#map');
-  const b = c.getBoundingClientRect();
-  const k = b.width / c.width;
-  return {x: b.left + px * k, y: b.top + py * k, wx: r.pose[0], wy: r.pose[1], yaw: r.pose[2]};
+  const at = () => {
+    const b = c.getBoundingClientRect();
+    const k = b.width / c.width;
+    return [b.left + px * k, b.top + py * k];
+  };
+  let [x, y] = at();
+  if (document.elementFromPoint(x, y) !== c) {
+    window.scrollBy(0, y - window.innerHeight / 2);
+    [x, y] = at();
+  }
+  return {x, y, wx: r.pose[0], wy: r.pose[1], yaw: r.pose[2], onMap: document.elementFromPoint(x, y) === c};
 }"""
 
 
 def _drag(page, where: dict, length: float = 40.0) -> None:
     """Press at the robot's position and release ``length`` pixels away along its heading."""
+    assert where["onMap"], f"the robot's drawn position {where} is not on the visible map"
     page.mouse.move(where["x"], where["y"])
     page.mouse.down()
     x1 = where["x"] + length * math.cos(where["yaw"])
