@@ -30,6 +30,8 @@ from agents.scenarios.swarm import (
     SwarmMonitor,
     away_from,
     crowd_world,
+    latency_bin,
+    latency_bins,
     write_crowd_world,
 )
 from agents.scenarios.swarm.messages import STATS_SERVICE
@@ -64,6 +66,21 @@ def test_latency_histogram_quantiles_merge_and_round_trip():
     assert h.to_dict()["bins"][0] == 0 and h.counts[0] == 1 and len(LATENCY_EDGES) == h.counts.size + 1
     with pytest.raises(ValueError):
         LatencyHistogram.from_dict({"bins": [1, 2], "counts": [1]})
+
+
+def test_latency_bins_have_round_edges_so_a_50_ms_limit_is_decided_exactly():
+    assert {0.001, 0.002, 0.005, 0.01, 0.02, 0.04, 0.05, 0.1} <= set(LATENCY_EDGES.tolist())
+    under, at = LatencyHistogram(), LatencyHistogram()
+    for _ in range(1000):
+        under.add(0.0499)  # all under 50 ms: the bound is the edge 50 ms (or the largest seen)
+        at.add(0.0501)
+    under.add(0.5)
+    at.add(0.5)  # the bin above 50 ms: its bound is the next edge, 63 ms
+    assert under.quantile(0.99) == 0.05
+    assert at.quantile(0.99) == pytest.approx(0.063)
+    lat = np.array([-1.0, 0.0, 1e-5, 0.00125, 0.0499, 0.05, 99.0, 1e9])
+    assert latency_bins(lat).tolist() == [latency_bin(v) for v in lat.tolist()]
+    assert latency_bin(0.05) == latency_bin(0.0501) == latency_bin(0.0499) + 1
 
 
 def _msg(sender: str, seq: int, x: float = 1.0, t: float | None = None) -> Message:

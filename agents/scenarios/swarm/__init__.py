@@ -19,7 +19,7 @@ from .agents import SwarmAgent
 from .behaviour import Disperse, SwarmPioneer, away_from, away_headings
 from .delivery import Delivery, NeighbourhoodDelivery, expand_ranges
 from .messages import STATS_SERVICE
-from .metrics import LATENCY_EDGES, LatencyHistogram, latency_bin, sequence
+from .metrics import LATENCY_EDGES, LatencyHistogram, latency_bin, latency_bins, sequence
 from .monitor import SwarmMonitor
 from .world import crowd_world, write_crowd_world
 
@@ -38,6 +38,7 @@ __all__ = [
     "crowd_world",
     "expand_ranges",
     "latency_bin",
+    "latency_bins",
     "sequence",
     "write_crowd_world",
 ]

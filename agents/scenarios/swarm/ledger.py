@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .metrics import LATENCY_EDGES, sequence
+from .metrics import LATENCY_EDGES, latency_bins, sequence
 
 if TYPE_CHECKING:
     from agents.hub import RobotHub
@@ -51,14 +51,6 @@ def code(sender: str) -> int:
         c = _codes[sender] = len(_names)
         _names.append(sender)
     return c
-
-
-def latency_bins(lat: np.ndarray) -> np.ndarray:
-    """:func:`.metrics.latency_bin` of each latency (seconds), vectorised."""
-    lat = np.asarray(lat, dtype=float)
-    i = np.floor((np.log10(np.maximum(lat, 1e-5)) + 5.0) * 10.0).astype(np.int64)
-    i[lat <= 1e-5] = 0
-    return np.clip(i, 0, _NBINS - 1)
 
 
 class Received:

@@ -4,29 +4,40 @@ Each broadcast's conversation id is ``p<sequence number>`` (:func:`sequence`), s
 the gaps per sender (the delivery ratio); the receive wall time minus the message's ``time`` is its
 latency, counted in the log-scale bins of :data:`LATENCY_EDGES` by a :class:`LatencyHistogram`
 that merges across agents (the monitor merges every agent's) and travels as a dict on the
-``swarm_stats`` service (:mod:`.messages`).
+``swarm_stats`` service (:mod:`.messages`). The edges are round numbers, so a limit such as 50 ms is
+checked exactly.
 """
 
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["LATENCY_EDGES", "LatencyHistogram", "latency_bin", "sequence"]
+__all__ = ["LATENCY_EDGES", "R10", "LatencyHistogram", "latency_bin", "latency_bins", "sequence"]
 
-#: latency histogram bin edges in seconds: 10 µs .. 100 s, 10 bins per decade (bin i is [e_i, e_i+1))
-LATENCY_EDGES = 10.0 ** (np.arange(71) / 10.0 - 5.0)
+#: the R10 preferred numbers (ISO 3): ten steps per decade, each 25-28 % above the one before
+R10 = (1.0, 1.25, 1.6, 2.0, 2.5, 3.15, 4.0, 5.0, 6.3, 8.0)
+#: latency histogram bin edges in seconds: 10 µs .. 100 s on the R10 series, 10 bins per decade (bin
+#: i is [e_i, e_i+1)). The edges are round numbers (1, 2, 5, 10, 20, 40, 50, 100 ms ...), so a limit
+#: on one of them is decided exactly: every latency of the bins below the edge 50 ms is under 50 ms.
+LATENCY_EDGES = np.array([float(f"{m}e{k}") for k in range(-5, 2) for m in R10] + [100.0])
 _NBINS = LATENCY_EDGES.size - 1
+_EDGES = LATENCY_EDGES.tolist()
 
 
 def latency_bin(latency: float) -> int:
     """The bin of :data:`LATENCY_EDGES` that ``latency`` (seconds) falls in (clamped)."""
-    if latency <= 1e-5:
-        return 0
-    i = int((math.log10(latency) + 5.0) * 10.0)
-    return i if i < _NBINS else _NBINS - 1
+    i = bisect_right(_EDGES, latency) - 1
+    return 0 if i < 0 else (i if i < _NBINS else _NBINS - 1)
+
+
+def latency_bins(lat: np.ndarray) -> np.ndarray:
+    """:func:`latency_bin` of each latency (seconds), vectorised."""
+    i = np.searchsorted(LATENCY_EDGES, np.asarray(lat, dtype=float), side="right") - 1
+    return np.clip(i, 0, _NBINS - 1)
 
 
 def sequence(conversation: str) -> int | None:
@@ -102,7 +113,8 @@ class LatencyHistogram:
         return int(self.counts.sum())
 
     def quantile(self, q: float) -> float:
-        """The upper edge of the bin holding quantile ``q`` (seconds; an upper bound within 26 %)."""
+        """The upper edge of the bin holding quantile ``q`` (seconds; an upper bound within 28 %), or
+        the largest latency seen if that is lower."""
         n = self.n
         if n == 0:
             return math.nan

@@ -37,6 +37,11 @@ __all__ = ["SwarmMonitor"]
 log = logging.getLogger(__name__)
 
 
+def _ms(v: float) -> str:
+    """A latency bound in ms as the histogram's edges read (31.5, 50, 630; inf)."""
+    return f"{v:.0f}" if not v < 100 else f"{v:.3g}"
+
+
 @agent_class("SwarmMonitor")
 class SwarmMonitor(Agent):
     """Judges a swarm run from the simulation's ground truth (thesis 4.2.3).
@@ -254,7 +259,7 @@ class SwarmMonitor(Agent):
         if nd is not None and nd.monitor_missed:
             problems.append(f"the monitor itself missed {nd.monitor_missed} broadcast(s)")
         if not p99 <= self.max_p99_ms:
-            problems.append(f"p99 latency {p99:.0f} ms > {self.max_p99_ms:g} ms")
+            problems.append(f"p99 latency {_ms(p99)} ms > {self.max_p99_ms:g} ms")
         if reporting < n:
             problems.append(f"stats from {reporting} of {n} agents")
         s0 = self.spread[0][1] if self.spread else math.nan
@@ -267,7 +272,7 @@ class SwarmMonitor(Agent):
         )
         text = (
             f"{n} robots {elapsed:.0f} s: {'no overlap' if not self.overlaps else f'{self.overlaps} overlap(s)'}, "
-            f"{judged}, p99 latency {p99:.0f} ms, spread {s0:.1f} -> {s1:.1f} m"
+            f"{judged}, p99 latency {_ms(p99)} ms, spread {s0:.1f} -> {s1:.1f} m"
         )
         if problems:
             text += " -- " + "; ".join(problems)
