@@ -34,7 +34,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
-from rsal.cliutil import positive
+from rsal.cliutil import CROWD, brief, positive
 from rsal.errors import RsalError
 from rsal.transport import TransportArgs, add_transport_args
 
@@ -85,6 +85,27 @@ def _starting_line(agent) -> str:
     return f"starting {type(agent).__name__} {agent.id}{robot} ({', '.join(opts)})"
 
 
+def _starting_lines(agents: list) -> list[str]:
+    """A line per agent; for a crowd (more than :data:`rsal.cliutil.CROWD`), a line per run of
+    agents of one class and options: ``starting 500 SwarmAgent swarm0..swarm499 for robots
+    r0..r499 (laser off, period 0.1 s)``."""
+    if len(agents) <= CROWD:
+        return [_starting_line(a) for a in agents]
+    groups: list[tuple[tuple, list]] = []
+    for a in agents:
+        kind = (type(a).__name__, _starting_line(a).rsplit(" (", 1)[-1], bool(a.robot))
+        if groups and groups[-1][0] == kind:
+            groups[-1][1].append(a)
+        else:
+            groups.append((kind, [a]))
+    lines = []
+    for (cls, opts, _), run in groups:
+        robots = [a.robot for a in run if a.robot]
+        on = f" for robots {brief(robots)}" if robots else ""
+        lines.append(f"starting {len(run)} {cls} {brief(a.id for a in run)}{on} ({opts}")
+    return lines
+
+
 def _status(agent) -> str:
     status = getattr(agent, "status", None)
     return status() if callable(status) else agent.state
@@ -107,12 +128,15 @@ async def serve_agents(
     tolerate_failures: bool = False,
     name_agents: bool = True,
     steady_gc: bool = False,
+    each: bool = False,
 ) -> int:
     """Run ``agents`` on one host until SIGTERM/SIGINT, ``duration`` or their own end; returns the
     exit code. ``tag`` prefixes progress lines (``[agent]``, ``[host NAME]``); ``fail(line)`` reports
     an error line; ``name_agents`` puts the agent id in front of its errors. ``steady_gc`` (a process
     of its own: the agent-host processes) tunes the garbage collector and freezes what start-up left
-    alive (:mod:`rsal.gcpause`), and the progress lines give the collector's longest pause."""
+    alive (:mod:`rsal.gcpause`), and the progress lines give the collector's longest pause. A crowd
+    (more than :data:`rsal.cliutil.CROWD` agents) is started, running and stopped in a line each for
+    all, with the statuses of the first few; ``each`` prints a line per agent anyway."""
     from rsal import gcpause
     from rsal.client import Fabric
     from rsal.clock import ENV as clock_env
@@ -136,8 +160,8 @@ async def serve_agents(
     def error(agent, e: BaseException) -> None:
         fail(f"agent {agent.id}: {_error_text(e)}" if name_agents else _error_text(e))
 
-    for a in agents:
-        print(f"{tag} {_starting_line(a)}", flush=True)
+    for line in _starting_lines(agents):
+        print(f"{tag} {line}", flush=True)
     session = await asyncio.to_thread(open_session, targs)
     sim_clock = sim_time_from_env(session)  # RSAL_SIM_TIME: follow the simulation's clock
     if sim_clock is not None:
@@ -197,9 +221,13 @@ async def serve_agents(
             stopping.cancel()
             await host.stop()
             return 1
-        for a in running:
-            robot = f" on robot {a.robot}" if a.robot else ""
-            print(f"{tag} {a.id} running: {type(a).__name__}{robot}, token agents/{a.id}", flush=True)
+        if len(running) <= CROWD or each:
+            for a in running:
+                robot = f" on robot {a.robot}" if a.robot else ""
+                print(f"{tag} {a.id} running: {type(a).__name__}{robot}, token agents/{a.id}", flush=True)
+        else:
+            ids = brief(a.id for a in running)
+            print(f"{tag} {len(running)} agents running: {ids}, tokens agents/<id>", flush=True)
         if steady_gc:  # start-up's objects out of every later collection's way
             frozen = await asyncio.to_thread(gcpause.freeze_startup)
             print(f"{tag} {len(running)} agent(s) started; {frozen} objects frozen out of the gc's way", flush=True)
@@ -244,9 +272,14 @@ async def serve_agents(
         errors = [a for a in running if a.error is not None]
         for a in errors:
             fail(f"agent {a.id} failed: {type(a.error).__name__}: {a.error}")
-        for a in running:
-            if a.error is None:
-                print(f"{tag} {a.id} stopped ({reason}): {_status(a)}", flush=True)
+        ok = [a for a in running if a.error is None]
+        shown = ok if len(ok) <= CROWD or each else ok[:3]
+        for a in shown:
+            print(f"{tag} {a.id} stopped ({reason}): {_status(a)}", flush=True)
+        if len(shown) < len(ok):
+            more = brief(a.id for a in ok[len(shown) :])
+            n = len(ok) - len(shown)
+            print(f"{tag} {n} more agents stopped ({reason}): {more} (-v: each one's status)", flush=True)
     return 1 if errors else 0  # failed starts returned 1 above unless tolerated
 
 
@@ -309,6 +342,7 @@ def main(argv: list[str] | None = None) -> int:
                 report_every=args.report_every,
                 tolerate_failures=args.tolerate_failures,
                 steady_gc=True,
+                each=args.verbose > 0,
             )
         )
     except ValueError as e:  # the session could not be opened

@@ -60,7 +60,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from rsal.cliutil import positive
+from rsal.cliutil import brief, positive
 from rsal.clock import ENV as clock_env
 from rsal.clock import SimClock
 from rsal.keys import host_key
@@ -305,8 +305,9 @@ class Runner:
             argv += ["--host", group, "--report-every", f"{self.args.host_report:g}"]
             for item in self.args.set or []:
                 argv += ["--set", item]
+            argv += ["-v"] * min(int(getattr(self.args, "verbose", 0) or 0), 2)  # -v: a line per agent
             argv += self._member_flags(self.agent_flags)
-            ids = ", ".join(a.id for a in entries)
+            ids = brief(a.id for a in entries)
             self._start(group, "host", argv, f"agent host with {len(entries)} agent(s): {ids}")
 
     def _check_machines(self) -> None:

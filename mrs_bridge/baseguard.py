@@ -7,7 +7,8 @@ output -- keeps one :class:`BaseGuard` and asks it before it moves the motors:
   :data:`DEFAULT_CMD_TIMEOUT`; ``0`` disables the timeout, which is unsafe: a robot whose commander
   dies drives on). When a moving command is not refreshed in time, :meth:`BaseGuard.expired`
   answers ``True`` once, the driver stops the motors, the data says ``timed_out`` until the next
-  command, and one line is logged per timeout (not per cycle). The time is the base's own clock:
+  command, and one line is logged per timeout (not per cycle; the timeouts of many bases within a second, one
+  line for all). The time is the base's own clock:
   simulated seconds for a simulated base (so a run at any speed-up behaves alike), the server's
   monotonic wall clock for hardware and local planners: see docs/protocol.md, "Command timeout".
   A position goal (a local planner's ``goto``) is not a held velocity: the planner pursues it
@@ -26,9 +27,12 @@ from __future__ import annotations
 
 import logging
 import math
+import re
+import threading
 import time
 from collections.abc import Callable
 
+from rsal.cliutil import brief
 from rsal.msgs import ErrorCode, MessageError, RpcError
 
 from .config import ConfigError
@@ -41,6 +45,60 @@ ESTOP_OPS = ("set_velocity", "estop", "release")  # the operations every base an
 
 class Latched(MessageError):
     """A velocity ``cmd`` arrived while the emergency stop is latched (dropped, warned rate-limited)."""
+
+
+class _TimeoutLines:
+    """The timeout warnings of a process's bases: the first in a second as its own line, the
+    others of that second (a server of a thousand robots whose commander stalled) gathered in one
+    line, written by a timer at the second's end -- not a thousand lines."""
+
+    window = 1.0  # s of wall time
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._open_until = -math.inf
+        self._held: dict[logging.Logger, list[str]] = {}
+
+    def add(self, guard: BaseGuard, age: float) -> None:
+        now = time.monotonic()
+        with self._lock:
+            if now >= self._open_until:
+                self._open_until = now + self.window
+                held = False
+            else:
+                self._held.setdefault(guard.log, []).append(guard.name)
+                held = True
+        if not held:
+            guard.log.warning(
+                "%s: no velocity command for %.2f s (cmd_timeout %g s): motors stopped until the next command",
+                guard.where,
+                age,
+                guard.cmd_timeout,
+            )
+            timer = threading.Timer(self.window, self.flush)
+            timer.name = "base-timeouts"
+            timer.start()  # not a daemon: the held names are written before the process ends
+
+    def flush(self) -> None:
+        with self._lock:
+            held, self._held = self._held, {}
+        for log, names in held.items():
+            bases = sorted(set(names), key=_natural)
+            log.warning(
+                "%d more base(s) without a velocity command within their cmd_timeout%s: %s; motors stopped "
+                "until the next command",
+                len(bases),
+                "" if len(bases) == len(names) else f" ({len(names)} timeouts, some bases twice)",
+                brief(bases),
+            )
+
+
+_TIMEOUTS = _TimeoutLines()
+
+
+def _natural(name: str) -> tuple:
+    """Sort key: ``r2`` before ``r10``."""
+    return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", name))
 
 
 class BaseGuard:
@@ -119,12 +177,7 @@ class BaseGuard:
             return False
         self._moving = False
         self.timed_out = True
-        self.log.warning(
-            "%s: no velocity command for %.2f s (cmd_timeout %g s): motors stopped until the next command",
-            self.where,
-            age,
-            self.cmd_timeout,
-        )
+        _TIMEOUTS.add(self, age)
         return True
 
     # ------------------------------------------------------------------ emergency stop

@@ -28,7 +28,7 @@ import signal
 import sys
 import time
 
-from rsal.cliutil import positive
+from rsal.cliutil import brief, positive
 from rsal.transport import TransportArgs, add_transport_args, open_session
 
 from .config import ConfigError, DriverConfig, ServerConfig, load_config
@@ -250,12 +250,12 @@ def _sim(args: argparse.Namespace) -> int:
         i, n = args.nav_part
         robots = sorted({d.provides[0].node for d in cfg.drivers}, key=world.robot_names.index)
         print(
-            f"[nav] {args.world}: part {i}/{n}: navigation stacks of {len(robots)} robot(s) ({', '.join(robots)})",
+            f"[nav] {args.world}: part {i}/{n}: navigation stacks of {len(robots)} robot(s) ({brief(robots)})",
             flush=True,
         )
         return run_server(cfg, args)
     sp = "as fast as possible" if math.isinf(spec.speedup) else f"{spec.speedup:g}x real time"
-    print(f"[sim] {args.world}: {len(world.robot_names)} robots ({', '.join(world.robot_names)}), {sp}", flush=True)
+    print(f"[sim] {args.world}: {len(world.robot_names)} robots ({brief(world.robot_names)}), {sp}", flush=True)
     t0 = time.monotonic()
     rc = run_server(cfg, args, shared={"simulator.world": world})
     wall = time.monotonic() - t0

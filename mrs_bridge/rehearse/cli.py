@@ -26,7 +26,7 @@ import threading
 import tomllib
 from pathlib import Path
 
-from rsal.cliutil import positive
+from rsal.cliutil import brief, positive
 from rsal.errors import RsalError
 from rsal.keys import DeviceAddr, parse_device
 from rsal.suggest import did_you_mean
@@ -246,7 +246,7 @@ def _run(args: argparse.Namespace) -> int:
         near = did_you_mean(robot, world.robot_names)
         hint = f"did you mean {near!r}? " if near else ""
         raise RehearseError(
-            f"{args.world}: no robot named {robot!r}; {hint}robots: {', '.join(world.robot_names) or 'none'}"
+            f"{args.world}: no robot named {robot!r}; {hint}robots: {brief(world.robot_names) or 'none'}"
         )
     if not all(c.isalnum() or c in "_-" for c in robot):
         raise RehearseError(f"{args.world}: robot name {robot!r} is no node name; rename it (letters, digits, _ -)")

@@ -21,6 +21,7 @@ from typing import Any
 import zenoh
 
 from rsal import keys
+from rsal.cliutil import CROWD
 from rsal.errors import RsalError
 from rsal.keys import DeviceAddr
 from rsal.msgs import MessageError
@@ -84,6 +85,7 @@ class DeviceServer(_Intake, _Rpc, _Devices):
         self.devices: dict[DeviceAddr, _Device] = {}
         self._stop = threading.Event()
         self._warned: dict[str, tuple[float, int]] = {}
+        self._providing = 0  # drivers whose devices were logged at info level (CROWD, then debug)
         self.stats = {
             "cmd": 0,
             "rpc": 0,
@@ -349,7 +351,13 @@ class DeviceServer(_Intake, _Rpc, _Devices):
             return
         for a in drv.cfg.provides:
             self._declare(slot, a.without_key())
-        log.info("%s: providing %s", slot.name, ", ".join(str(a.without_key()) for a in drv.cfg.provides))
+        # a line per driver for a few; a crowd's (a 1000-robot world: 1002 drivers) at debug level
+        level = logging.INFO if self._providing < CROWD else logging.DEBUG
+        if log.isEnabledFor(level):
+            log.log(level, "%s: providing %s", slot.name, ", ".join(str(a.without_key()) for a in drv.cfg.provides))
+        if self._providing == CROWD and not log.isEnabledFor(logging.DEBUG):
+            log.info("%s: more drivers; their devices are listed at debug level (-vv)", self.config.source or "server")
+        self._providing += 1
 
     def _warn(self, key: str, text: str, level: int = logging.WARNING) -> None:
         """Log ``text`` at most once per :data:`WARN_INTERVAL` per ``key``, with a count of the

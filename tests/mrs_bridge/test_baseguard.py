@@ -8,6 +8,7 @@ import logging
 import pytest
 
 import mrs_bridge.drivers.sim  # noqa: F401  (registers the sim drivers)
+from mrs_bridge import baseguard
 from mrs_bridge.baseguard import BaseGuard, Latched
 from mrs_bridge.config import ConfigError, parse_config
 from mrs_bridge.driver import Deferred
@@ -16,6 +17,12 @@ from rsal.keys import parse_device
 from rsal.msgs import ErrorCode, Position2dData, RpcError, VelocityCmd, decode_map
 from rsal.testing import FakeServer, FakeSession
 from tests.conftest import MAPS
+
+
+@pytest.fixture(autouse=True)
+def _fresh_timeout_lines(monkeypatch):
+    """A timeout line of an earlier test's base must not hold this test's first one back."""
+    monkeypatch.setattr(baseguard, "_TIMEOUTS", baseguard._TimeoutLines())
 
 
 class Clock:
@@ -40,6 +47,23 @@ def test_a_moving_command_expires_once_and_a_new_one_clears_the_flag(caplog):
     assert sum("no velocity command" in r.message for r in caplog.records) == 1
     g.command(0.0, 0.2)
     assert not g.timed_out
+
+
+def test_the_timeouts_of_many_bases_within_a_second_are_one_line_for_all(caplog):
+    clock = Clock()
+    guards = [BaseGuard(f"crowd.world: sim r{i}", f"r{i}", 0.5, clock=clock) for i in range(300)]
+    for g in guards:
+        g.command(0.3, 0.0)
+    clock.t += 0.6
+    with caplog.at_level(logging.WARNING):
+        assert all(g.expired() for g in guards)  # every base stops at once; the lines wait
+        first = [r.getMessage() for r in caplog.records]
+        baseguard._TIMEOUTS.flush()  # what the timer does at the second's end
+        lines = [r.getMessage() for r in caplog.records]
+    assert len(first) == 1 and first[0].startswith("crowd.world: sim r0: no velocity command for 0.60 s")
+    assert len(lines) == 2, lines
+    assert "299 more base(s) without a velocity command" in lines[1] and "r1..r299" in lines[1], lines[1]
+    assert all(g.timed_out for g in guards)
 
 
 def test_a_held_stop_never_times_out_and_zero_disables_the_timeout():
