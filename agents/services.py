@@ -531,7 +531,10 @@ class Services:
     # ------------------------------------------------------------------ hello
     def declare_hello(self, hello: Hello) -> zenoh.Queryable:
         key = service_key(HELLO, hello.id)
-        return self.session.declare_queryable(key, lambda q: self.call_soon(self._answer_hello, q, key, hello))
+        # run on Zenoh's own thread (it only queues the answer for the loop): zenoh-python would
+        # otherwise start a Python thread for each queryable -- 500 idle threads in a swarm host
+        handler = zenoh.handlers.Callback(lambda q: self.call_soon(self._answer_hello, q, key, hello), indirect=False)
+        return self.session.declare_queryable(key, handler)
 
     def _answer_hello(self, query: zenoh.Query, key: str, hello: Hello) -> None:
         try:
