@@ -5,16 +5,41 @@ form of a long list of names (:func:`brief`: a thousand robots in one line, not 
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import re
 import signal
 import threading
 from collections.abc import Iterable
 
-__all__ = ["CROWD", "brief", "positive", "stop_on_signals"]
+__all__ = ["CROWD", "FirstFew", "brief", "positive", "stop_on_signals"]
 
 #: above this many robots or agents, progress output gives one line for all, not one line each
 CROWD = 10
+
+
+class FirstFew:
+    """Log lines of one kind -- one per robot or driver -- at their level for the first ``n``
+    (:data:`CROWD`), then at debug level, with one line that says so: a crowd of a thousand robots
+    gives a few examples and the totals, not a thousand lines (``-vv`` shows them all)."""
+
+    def __init__(self, what: str, n: int = CROWD):
+        self.what = what
+        self.n = n
+        self.count = 0
+        self._lock = threading.Lock()
+
+    def log(self, logger: logging.Logger, level: int, msg: str, *args) -> None:
+        with self._lock:
+            self.count += 1
+            count = self.count
+        if count <= self.n:
+            logger.log(level, msg, *args)
+            return
+        if count == self.n + 1 and not logger.isEnabledFor(logging.DEBUG):
+            logger.log(level, "more %s; each at debug level (-vv)", self.what)
+        logger.debug(msg, *args)
+
 
 _NUMBERED = re.compile(r"(.*?)(0|[1-9][0-9]*)")
 

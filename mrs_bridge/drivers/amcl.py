@@ -42,6 +42,7 @@ declares at its broadcast rate and needs no reply.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -49,6 +50,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from rsal.cliutil import FirstFew
 from rsal.geometry import compose, relative
 from rsal.interfaces.localize import ObstaclesCmd
 from rsal.interfaces.ranger import RangerGeometry
@@ -70,6 +72,9 @@ from ..nav.knownobstacles import parse_obstacles
 from ..params import param, parse_params
 
 __all__ = ["AmclDriver"]
+
+#: one "map ... init at" line each for a few robots, then at debug level
+_STARTED = FirstFew("localizers started")
 
 RANGE_IFACES = ("laser", "ranger", "sonar")
 LOCALIZE_PERIOD = 0.5  # s: localize data at least this often, even without filter updates
@@ -171,7 +176,9 @@ class AmclDriver(Driver):
                 raise ConfigError(f"{self.cfg.where}: {e}") from None
             if self.start_global:
                 self.filter.init_global()
-            self.log.info(
+            _STARTED.log(
+                self.log,
+                logging.INFO,
                 "%s: map %dx%d at %g m; %s",
                 self.cfg.where,
                 m.width,

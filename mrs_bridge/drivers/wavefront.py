@@ -42,6 +42,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from rsal.cliutil import FirstFew
 from rsal.msgs import ErrorCode, MapData, MessageError, PlannerData, Position2dData, RpcError, VelocityCmd, get_vec
 
 from ..config import ConfigError
@@ -50,6 +51,9 @@ from ..params import param, parse_params
 from .navcommon import Handover
 
 __all__ = ["WavefrontDriver"]
+
+#: one "configuration space ready" line each for a few planners, then at debug level
+_READY = FirstFew("planners ready")
 
 RADIUS_TRIES = 20  # describes of the local planner (every 0.25 s) before its radius is taken as it is
 
@@ -192,7 +196,9 @@ class WavefrontDriver(Driver):
             except Exception:
                 pass
             planner.reset()
-        self.log.info(
+        _READY.log(
+            self.log,
+            logging.INFO,
             "%s: configuration space ready (radius %.2f m + safety %.2f m) in %.0f ms",
             self.cfg.where,
             self.robot_radius,

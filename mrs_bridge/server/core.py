@@ -21,7 +21,7 @@ from typing import Any
 import zenoh
 
 from rsal import keys
-from rsal.cliutil import CROWD
+from rsal.cliutil import FirstFew
 from rsal.errors import RsalError
 from rsal.keys import DeviceAddr
 from rsal.msgs import MessageError
@@ -85,7 +85,9 @@ class DeviceServer(_Intake, _Rpc, _Devices):
         self.devices: dict[DeviceAddr, _Device] = {}
         self._stop = threading.Event()
         self._warned: dict[str, tuple[float, int]] = {}
-        self._providing = 0  # drivers whose devices were logged at info level (CROWD, then debug)
+        where = config.source or "server"
+        self._providing = FirstFew(f"drivers up in {where}")  # a line each for a few, then debug
+        self._waiting = FirstFew(f"drivers waiting for devices in {where}")
         self.stats = {
             "cmd": 0,
             "rpc": 0,
@@ -134,7 +136,8 @@ class DeviceServer(_Intake, _Rpc, _Devices):
                     history=True,
                 )
                 slot.subs.append(sub)
-            log.info("%s: waiting for %s", slot.name, ", ".join(map(str, sorted(slot.missing))))
+            missing = ", ".join(map(str, sorted(slot.missing)))
+            self._waiting.log(log, logging.INFO, "%s: waiting for %s", slot.name, missing)
 
     def stop(self) -> None:
         """Ask :meth:`run` to return (thread-safe, signal-safe)."""
@@ -352,12 +355,8 @@ class DeviceServer(_Intake, _Rpc, _Devices):
         for a in drv.cfg.provides:
             self._declare(slot, a.without_key())
         # a line per driver for a few; a crowd's (a 1000-robot world: 1002 drivers) at debug level
-        level = logging.INFO if self._providing < CROWD else logging.DEBUG
-        if log.isEnabledFor(level):
-            log.log(level, "%s: providing %s", slot.name, ", ".join(str(a.without_key()) for a in drv.cfg.provides))
-        if self._providing == CROWD and not log.isEnabledFor(logging.DEBUG):
-            log.info("%s: more drivers; their devices are listed at debug level (-vv)", self.config.source or "server")
-        self._providing += 1
+        provided = ", ".join(str(a.without_key()) for a in drv.cfg.provides)
+        self._providing.log(log, logging.INFO, "%s: providing %s", slot.name, provided)
 
     def _warn(self, key: str, text: str, level: int = logging.WARNING) -> None:
         """Log ``text`` at most once per :data:`WARN_INTERVAL` per ``key``, with a count of the

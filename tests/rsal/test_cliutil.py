@@ -28,3 +28,25 @@ def test_positive_rejects_what_is_not_a_finite_positive_number(bad):
     with pytest.raises(argparse.ArgumentTypeError):
         positive(bad)
     assert positive("0.5") == 0.5
+
+
+def test_first_few_logs_a_few_lines_of_a_kind_then_says_the_rest_are_at_debug_level(caplog):
+    import logging
+
+    from rsal.cliutil import FirstFew
+
+    log = logging.getLogger("test.firstfew")
+    few = FirstFew("robots started", n=3)
+    with caplog.at_level(logging.INFO, logger="test.firstfew"):
+        for i in range(50):
+            few.log(log, logging.INFO, "r%d: started", i)
+    assert [r.getMessage() for r in caplog.records] == [
+        "r0: started",
+        "r1: started",
+        "r2: started",
+        "more robots started; each at debug level (-vv)",
+    ]
+    caplog.clear()
+    with caplog.at_level(logging.DEBUG, logger="test.firstfew"):
+        few.log(log, logging.INFO, "r50: started")
+    assert [(r.levelno, r.getMessage()) for r in caplog.records] == [(logging.DEBUG, "r50: started")]

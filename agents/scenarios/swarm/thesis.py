@@ -50,6 +50,7 @@ from agents.registry import agent_class
 from agents.services import Outcome, SendPosition
 from rsal import keys
 from rsal.behaviours import SECTOR_COUNT, BehaviourParams, ListSectors
+from rsal.cliutil import FirstFew
 from rsal.clock import clock
 from rsal.data import normalize_angle
 from rsal.geometry import compose, relative
@@ -66,6 +67,9 @@ _SECTOR = 360.0 / SECTOR_COUNT
 _HALF_SECTOR = _SECTOR / 2
 
 __all__ = ["ThesisPioneer", "ThesisSwarmAgent", "ThesisSwarmMonitor", "params_for_size"]
+
+#: re-seeds logged one line each for a few, then at debug level (each agent counts its own)
+_RESEEDS = FirstFew("re-seeds of localize poses")
 
 log = logging.getLogger(__name__)
 
@@ -168,7 +172,9 @@ class ThesisPioneer(SwarmPioneer):
             or abs(normalize_angle(est[2] - pred[2])) > self.jump_yaw
         ):
             self.reseeds += 1
-            log.info(
+            _RESEEDS.log(
+                log,
+                logging.INFO,
                 "%s: localize pose jumped %.2f m from the odometry's; re-seeded",
                 self.name,
                 math.hypot(est[0] - pred[0], est[1] - pred[1]),
