@@ -29,7 +29,7 @@ from rsal.suggest import did_you_mean
 
 from ..config import ConfigError, DriverConfig, ServerConfig
 from ..driver import DRIVERS, Driver
-from .devices import _Device, _Devices
+from .devices import _Device, _Devices, _direct
 from .intake import INBOX_MAX, MAX_INPUT, _Inbox, _Intake
 from .rpc import _Rpc
 
@@ -37,6 +37,7 @@ __all__ = ["DeviceServer", "ServerError", "make_driver_config"]
 
 log = logging.getLogger("mrs_bridge.server")  # the server logs under one name
 
+PUT = zenoh.SampleKind.PUT
 WARN_INTERVAL = 5.0  # s between repeated warnings about the same key
 WARN_KEYS = 4096  # rate-limiter entries kept; older ones are forgotten beyond this
 
@@ -132,7 +133,7 @@ class DeviceServer(_Intake, _Rpc, _Devices):
             for r in set(reqs):
                 sub = self.session.liveliness().declare_subscriber(
                     keys.device_key(r),
-                    lambda s, slot=slot, r=r: self.inbox.put(("live", slot, r, s.kind == zenoh.SampleKind.PUT)),
+                    _direct(lambda s, slot=slot, r=r, put=self.inbox.put: put(("live", slot, r, s.kind == PUT))),
                     history=True,
                 )
                 slot.subs.append(sub)
@@ -343,8 +344,10 @@ class DeviceServer(_Intake, _Rpc, _Devices):
                 slot.subs.append(
                     self.session.declare_subscriber(
                         key,
-                        lambda s, slot=slot, r=r, ch=channel: self._on_sample(
-                            ("input", slot, r, ch), s.payload, MAX_INPUT
+                        _direct(
+                            lambda s, slot=slot, r=r, ch=channel: self._on_sample(
+                                ("input", slot, r, ch), s.payload, MAX_INPUT
+                            )
                         ),
                     )
                 )
