@@ -139,9 +139,12 @@ class SimClock(Clock):
             self._cond.notify_all()
             if self._sleepers and (replan or self._speed > self._plan_speed * self.REPLAN):
                 self._plan_speed = math.inf
+                by_loop: dict[asyncio.AbstractEventLoop, list[asyncio.Future]] = {}
                 for loop, fut in self._sleepers:
+                    by_loop.setdefault(loop, []).append(fut)
+                for loop, futs in by_loop.items():  # one hand-over per loop, not per sleeper (500 in a swarm host)
                     try:
-                        loop.call_soon_threadsafe(_wake, fut)
+                        loop.call_soon_threadsafe(_wake_all, futs)
                     except RuntimeError:  # that loop is closed
                         pass
 
@@ -253,6 +256,11 @@ class SimClock(Clock):
 def _wake(fut: asyncio.Future) -> None:
     if not fut.done():
         fut.set_result(None)
+
+
+def _wake_all(futs: list[asyncio.Future]) -> None:
+    for fut in futs:
+        _wake(fut)
 
 
 _clock: Clock = WallClock()
