@@ -28,22 +28,29 @@ on the host's loop when they are published, and its subscribers take only other 
 sender chunk still turns away a local sender's copy, should one come). A swarm host of 500 robots
 hears its own agents in about half of what it receives: each was a trip through Zenoh's local
 routing, a callback thread and a decode (later a callback that only rejected it).
+
+With ``bundles`` it also holds one subscriber on the service's bundles (``svc/<service>/@bundle/*``,
+:mod:`agents.services`), whatever its form, and delivers the entries of its watched cells: one
+sample, one thread hand-over and one loop call per bundle instead of per broadcast.
 """
 
 from __future__ import annotations
 
 import inspect
+import logging
 import time
 from typing import TYPE_CHECKING
 
 from rsal.keys import check_name
 
-from .services import Callback, Filter, Message, Subscription
+from .services import BundleSubscription, Callback, Filter, Message, Subscription
 
 if TYPE_CHECKING:
     from .services import Services
 
 __all__ = ["DEFAULT_WILDCARD_ABOVE", "CellSubscription"]
+
+log = logging.getLogger(__name__)
 
 #: above this many watched cells, one wildcard subscriber filtered by cell replaces a subscriber per cell
 DEFAULT_WILDCARD_ABOVE = 64
@@ -68,6 +75,7 @@ class CellSubscription:
         wildcard_above: int = DEFAULT_WILDCARD_ABOVE,
         overlap: float = 2.0,
         loopback: bool = False,
+        bundles: bool = False,
     ):
         self.service, self.owner = service, owner
         self.wildcard_above = int(wildcard_above)
@@ -90,6 +98,12 @@ class CellSubscription:
         self.closed = False
         if self.loopback:
             services.add_loopback(service, self)
+        self.bundle_entries = 0  # bundle entries of watched cells, delivered
+        self._bundles = (
+            BundleSubscription(services, service, self._on_bundle, owner, on_thread=True, remote_only=self.loopback)
+            if bundles
+            else None
+        )
 
     @property
     def cells(self) -> set[str]:
@@ -169,6 +183,25 @@ class CellSubscription:
             return False
         return not (self.loopback and parts[3] in self._services.local_senders)  # had in process
 
+    def _on_bundle(self, entries: list[tuple[str, Message]], _t: float) -> None:  # Zenoh's thread
+        watched = self._watched
+        local = self._services.local_senders if self.loopback else ()
+        mine = [m for c, m in entries if c in watched and m.sender not in local]
+        if mine:
+            self._services.call_soon(self._deliver_many, mine)
+
+    def _deliver_many(self, msgs: list[Message]) -> None:  # the host's loop
+        if self.closed:
+            return
+        self.bundle_entries += len(msgs)
+        for msg in msgs:
+            try:
+                out = self._on_message(msg)
+                if out is not None:
+                    self._services.host.spawn(out, f"{self.owner}: {self.service} callback")
+            except Exception:
+                log.exception("%s: callback for %s from %s failed", self.owner, self.service, msg.sender)
+
     def local(self, msg: Message, cell: str) -> None:  # the host's loop, from Services.publish
         """A broadcast of this host's own, from ``cell``: delivered when the cell is watched."""
         if self.closed or cell not in self._watched:
@@ -209,4 +242,6 @@ class CellSubscription:
             for sub in self._retiring:
                 sub.close()
             self._retiring.clear()
+            if self._bundles is not None:
+                self._bundles.close()
             self._watched = frozenset()

@@ -167,13 +167,15 @@ class RobotHub:
         listener: Listener | None = None,
         *,
         wildcard_above: int = DEFAULT_WILDCARD_ABOVE,
+        bundle: bool = False,
     ) -> None:
         """Subscribe to ``send_position`` in the cells (:mod:`agents.cells`, squares of ``cell_size``
         m) within ``radius + margin`` m of any of the host's robots, re-watched every ``refresh``
         seconds as they move, and call ``listener`` once per message. Every agent of the host that
         listens near shares one radius and cell size (the first one asked for). Above
         ``wildcard_above`` cells (0: never) the hub holds one subscriber on every cell and drops the
-        others' messages itself (:mod:`agents.cellsub`)."""
+        others' messages itself (:mod:`agents.cellsub`). The hub always takes other hosts' bundles
+        (:mod:`agents.services`); ``bundle``: the host's own broadcasts go out bundled too."""
         if not (radius > 0 and cell_size > 0 and margin >= 0 and refresh > 0):
             raise ValueError(
                 f"neighbourhood radius {radius!r}, cell size {cell_size!r}, margin {margin!r} and refresh "
@@ -200,11 +202,14 @@ class RobotHub:
                 owner="robot-hub",
                 wildcard_above=wildcard_above,
                 loopback=self.loopback,
+                bundles=True,
             )
             self._watch_task = self.host.spawn(self._rewatch_loop(), "robot hub cell watch")
         else:
             self.margin = max(self.margin, float(margin))
             self.refresh = min(self.refresh, float(refresh))
+        if bundle:
+            self.host.services.bundle(SendPosition.SERVICE)
 
     def rewatch(self, hooks: bool = True) -> set[str]:
         """Re-compute every agent's cells from its robot's latest pose and watch their union (new

@@ -13,6 +13,18 @@ is not the sender chunk of its key (``svc/<service>/<sender>``) is a forgery on 
 agent publishes only under its own id -- so it is dropped, counted in :attr:`Services.forged` (and in
 ``dropped``) and reported by one rate-limited warning that names the key and the claimed sender.
 
+Bundles (for crowds): a host that bundles a service's cell broadcasts (:attr:`Services.bundled`)
+holds each of them for up to :attr:`Services.bundle_window` seconds and puts all it holds as one
+sample on ``svc/<service>/@bundle/<zid>`` (its Zenoh session's id; :func:`encode_bundle`): columns
+of cells, senders, conversations, times and bodies. ``@bundle`` is a verbatim chunk, so no ``*``
+or ``**`` subscriber sees bundles; receivers that take them subscribe to :func:`bundle_key`
+(:class:`BundleSubscription`; :class:`agents.cellsub.CellSubscription` with ``bundles``). A 1000-robot
+swarm's hosts put ~2,000 broadcasts a second: each a Zenoh sample that every receiving session
+routes (a route computed per sample, its cost growing with the declarations the session knows),
+hands to a thread and decodes. Bundled, they are ~200 samples. What a bundle cannot carry is the
+key's check of the sender: its entries name senders the key does not, so it is for open fabrics
+(the secured profile's access rules allow no bundle key).
+
 ``hello`` is the discovery service: every running agent answers queries on ``svc/hello/<agent_id>``
 with its id, class, robot and capabilities; :meth:`Services.who_is_there` collects the answers.
 
@@ -34,7 +46,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import zenoh
 
-from rsal.keys import SVC_PREFIX, check_name, service_key
+from rsal.keys import SVC_PREFIX, check_name, is_name, service_key
 from rsal.msgs import MessageError, decode_map, encode, get_bool, get_float, get_str
 
 if TYPE_CHECKING:
@@ -60,12 +72,20 @@ __all__ = [
     "decode_message",
     "encode_message",
     "SenderMismatch",
+    "BUNDLE",
+    "bundle_key",
+    "encode_bundle",
+    "decode_bundle",
+    "BundleSubscription",
 ]
 
 log = logging.getLogger(__name__)
 
 HELLO = "hello"
 _ENVELOPE = ("sender", "conversation", "time")
+#: the verbatim key chunk of bundles: ``svc/<service>/@bundle/<zid>``
+BUNDLE = "@bundle"
+_BUNDLE_COLUMNS = ("cells", "senders", "conversations", "times", "bodies")
 
 
 # ---------------------------------------------------------------------------- message bodies
@@ -229,6 +249,63 @@ def decode_message(service: str, key_sender: str, data: bytes) -> Message:
     return Message(service, sender, conversation, t, body)
 
 
+# ---------------------------------------------------------------------------- bundles
+def bundle_key(service: str, zid: str = "*") -> str:
+    """``svc/<service>/@bundle/<zid>`` (``*``: every session's bundles)."""
+    check_name("service", service)
+    return f"{SVC_PREFIX}/{service}/{BUNDLE}/{zid if zid == '*' else check_name('session id', zid)}"
+
+
+def encode_bundle(entries: list[tuple[str, str, str, float, Any]]) -> bytes:
+    """One bundle of cell broadcasts, each ``(cell, sender, conversation, time, body)``: a msgpack
+    map of five equally long columns (``cells``, ``senders``, ``conversations``, ``times``,
+    ``bodies``; a body as its ``to_dict``)."""
+    return encode(
+        {
+            "cells": [e[0] for e in entries],
+            "senders": [e[1] for e in entries],
+            "conversations": [e[2] for e in entries],
+            "times": [e[3] for e in entries],
+            "bodies": [b.to_dict() if hasattr(b, "to_dict") else dict(b) for b in (e[4] for e in entries)],
+        }
+    )
+
+
+def decode_bundle(service: str, data: bytes) -> tuple[list[tuple[str, Message]], list[str]]:
+    """The ``(cell, message)`` entries of one bundle of ``service``, and a reason for each entry
+    that failed validation (that entry is left out); raises :class:`MessageError` when the bundle
+    itself is malformed (nothing of it is used)."""
+    m = decode_map(data)
+    cols = []
+    for name in _BUNDLE_COLUMNS:
+        v = m.get(name)
+        if type(v) is not list:
+            raise MessageError(f"field {name!r} must be a list, not {type(v).__name__}")
+        cols.append(v)
+    n = len(cols[0])
+    if any(len(c) != n for c in cols):
+        raise MessageError("fields " + ", ".join(map(repr, _BUNDLE_COLUMNS)) + " must be lists of one length")
+    schema = SCHEMAS.get(service)
+    out: list[tuple[str, Message]] = []
+    bad: list[str] = []
+    for cell, sender, conv, t, body in zip(*cols, strict=True):
+        try:
+            if not is_name(cell):
+                raise MessageError(f"cell {cell!r} is not a key chunk")
+            if not is_name(sender):
+                raise MessageError(f"sender {sender!r} is not an agent id")
+            if type(conv) is not str:
+                raise MessageError(f"conversation {conv!r} is not a string")
+            if not (type(t) is float and t >= 0.0 and t - t == 0.0):
+                raise MessageError(f"time {t!r} is not a finite float >= 0")
+            if type(body) is not dict:
+                raise MessageError(f"body of {sender} is not a map")
+            out.append((cell, Message(service, sender, conv, t, schema.from_dict(body) if schema else body)))
+        except MessageError as e:
+            bad.append(str(e))
+    return out, bad
+
+
 # ---------------------------------------------------------------------------- filters
 Filter = Callable[[Message], bool]
 Callback = Callable[[Message], Awaitable[None] | None]
@@ -357,6 +434,65 @@ class Subscription:
             _undeclare(self._sub)
 
 
+class BundleSubscription:
+    """A subscriber to the bundles of one service (``svc/<service>/@bundle/*``): ``callback(entries,
+    t)`` gets each valid bundle's ``(cell, message)`` entries and the wall time ``t`` it arrived, on
+    the host's loop or, with ``on_thread``, on Zenoh's thread (thread-safe and quick there). A
+    malformed bundle, or entry, is dropped, counted in the host's ``dropped`` and warned about
+    (rate-limited). ``remote_only``: other sessions' bundles only. :meth:`close` undeclares it."""
+
+    def __init__(
+        self,
+        services: Services,
+        service: str,
+        callback: Callable[[list[tuple[str, Message]], float], None],
+        owner: str,
+        *,
+        on_thread: bool = False,
+        remote_only: bool = False,
+    ):
+        self.service, self.owner = service, owner
+        self._services = services
+        self._callback = callback
+        self._on_thread = on_thread
+        self.bundles = 0  # bundles received
+        self.entries = 0  # their valid entries
+        self.keyexpr = bundle_key(service)
+        origin = zenoh.Locality.REMOTE if remote_only else zenoh.Locality.ANY
+        self._sub = services.session.declare_subscriber(self.keyexpr, self._on_sample, allowed_origin=origin)
+        self.closed = False
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:  # a Zenoh thread
+        t = time.time()
+        key = str(sample.key_expr)
+        try:
+            entries, bad = decode_bundle(self.service, sample.payload.to_bytes())
+        except MessageError as e:
+            self._services.reject(key, e)
+            return
+        for reason in bad:
+            self._services.reject(key, MessageError(f"bundle entry dropped: {reason}"))
+        self.bundles += 1
+        self.entries += len(entries)
+        if self._on_thread:
+            self._deliver(entries, t)
+        else:
+            self._services.call_soon(self._deliver, entries, t)
+
+    def _deliver(self, entries: list[tuple[str, Message]], t: float) -> None:
+        if self.closed:
+            return
+        try:
+            self._callback(entries, t)
+        except Exception:
+            log.exception("%s: bundle callback for %s failed", self.owner, self.service)
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            _undeclare(self._sub)
+
+
 class Services:
     """Publishing, subscribing and ``hello`` for the agents of one :class:`AgentHost`."""
 
@@ -375,6 +511,17 @@ class Services:
         # reaches them as the Message it was, not through Zenoh's local routing, a thread and a decode
         self._loopback: dict[str, list[CellSubscription]] = {}
         self.local_senders: set[str] = set()  # senders whose cell broadcasts those subscriptions had so
+        # bundles: the services whose cell broadcasts this host bundles, what it holds of each
+        self.bundled: set[str] = set()
+        self.bundle_window = 0.01  # seconds a bundled broadcast waits at most for others to join it
+        self._held: dict[str, list[tuple[str, str, str, float, Any]]] = {}
+        self._bundle_pubs: dict[str, zenoh.Publisher] = {}
+        self._flush_due = False
+        self._bundle_cond = threading.Condition()
+        self._flusher: threading.Thread | None = None
+        self._bundles_closed = False
+        self.bundles_sent = 0  # bundles put so far
+        self.bundled_messages = 0  # the broadcasts they carried
         # calls from Zenoh's threads for the loop, served in batches (call_soon)
         self._soon: list[tuple[Callable, tuple]] = []
         self._soon_lock = threading.Lock()
@@ -446,13 +593,16 @@ class Services:
             return conv
         key = f"svc/{service}/{check_name('cell', cell)}/{sender}"
         t = time.time()
-        payload = encode_message(sender, body, conv, t)
         local = self._loopback.get(service)
         if local:
             self.local_senders.add(sender)  # before the put: its Zenoh copy is turned away by key
-        if not self.cache_publishers:
+        if service in self.bundled:
+            self._hold(service, (cell, sender, conv, t, body))
+        elif not self.cache_publishers:
+            payload = encode_message(sender, body, conv, t)
             self.session.put(key, payload)
         else:
+            payload = encode_message(sender, body, conv, t)
             with self._pub_lock:
                 held = self._pubs.get((service, sender))
                 if held is None or held[0] != key:
@@ -469,6 +619,64 @@ class Services:
                 else:
                     self.call_soon(sub.local, msg, cell)
         return conv
+
+    def _hold(self, service: str, entry: tuple[str, str, str, float, Any]) -> None:
+        """Keep a bundled broadcast for the next :meth:`flush_bundles`, which the host's bundling
+        thread runs ``bundle_window`` s after the first one held (a thread, not the loop: a loop
+        busy with a crowd's step would hold the bundle for as long)."""
+        with self._bundle_cond:
+            self._held.setdefault(service, []).append(entry)
+            closed = self._bundles_closed
+            if not self._flush_due and not closed:
+                self._flush_due = True
+                if self._flusher is None:
+                    self._flusher = threading.Thread(target=self._bundling, name="bundles", daemon=True)
+                    self._flusher.start()
+                self._bundle_cond.notify()
+        if closed:  # the host is ending: no thread waits any more
+            self.flush_bundles()
+
+    def _bundling(self) -> None:  # the bundling thread
+        while True:
+            with self._bundle_cond:
+                while not self._flush_due and not self._bundles_closed:
+                    self._bundle_cond.wait()
+                if self._bundles_closed:
+                    return
+            time.sleep(self.bundle_window)
+            self.flush_bundles()
+
+    def flush_bundles(self) -> None:
+        """Put what is held of every bundled service as one sample each (:func:`encode_bundle`)."""
+        with self._bundle_cond:
+            held, self._held = self._held, {}
+            self._flush_due = False
+        with self._pub_lock:
+            for service, entries in held.items():
+                if not entries:
+                    continue
+                pub = self._bundle_pubs.get(service)
+                if pub is None:
+                    zid = str(self.session.info.zid())
+                    pub = self._bundle_pubs[service] = self.session.declare_publisher(bundle_key(service, zid))
+                try:
+                    pub.put(encode_bundle(entries))
+                except Exception as e:  # a closing session: the broadcasts are lost, say so once
+                    n = len(entries)
+                    self.warn(f"bundle:{service}", f"could not put a bundle of {n} {service} broadcast(s): {e}")
+                    continue
+                self.bundles_sent += 1
+                self.bundled_messages += len(entries)
+
+    def bundle(self, service: str, window: float | None = None) -> None:
+        """Bundle this host's cell broadcasts of ``service`` from now on (module docstring);
+        ``window``: the most seconds one waits for others (default :attr:`bundle_window`)."""
+        check_name("service", service)
+        if window is not None:
+            if isinstance(window, bool) or not isinstance(window, (int, float)) or not 0 <= window <= 1:
+                raise ValueError(f"bundle window {window!r} must be a number of seconds from 0 to 1")
+            self.bundle_window = float(window)
+        self.bundled.add(service)
 
     def _on_loop(self) -> bool:
         try:
@@ -498,6 +706,15 @@ class Services:
             gone = [k for k in self._pubs if sender is None or k[1] == sender]
             for k in gone:
                 _undeclare(self._pubs.pop(k)[1])
+        if sender is None:  # the host's end: what is held goes out first
+            with self._bundle_cond:
+                self._bundles_closed = True
+                self._bundle_cond.notify()
+            self.flush_bundles()
+            with self._pub_lock:
+                for pub in self._bundle_pubs.values():
+                    _undeclare(pub)
+                self._bundle_pubs.clear()
 
     def subscribe(
         self, service: str, callback: Callback, flt: Filter | None = None, *, owner: str = ""
@@ -516,17 +733,21 @@ class Services:
         owner: str = "",
         wildcard_above: int | None = None,
         loopback: bool = False,
+        bundles: bool = False,
     ) -> CellSubscription:
         """Receive the messages on ``svc/<service>/<cell>/*`` of the cells given to
         :meth:`agents.cellsub.CellSubscription.watch` (none at first): a subscriber per cell, or one
         on ``svc/<service>/*/*`` filtered by cell while more than ``wildcard_above`` cells are
         watched (default :data:`agents.cellsub.DEFAULT_WILDCARD_ABOVE`). ``loopback``: this host's own
-        broadcasts reach it in process (:class:`agents.cellsub.CellSubscription`)."""
+        broadcasts reach it in process (:class:`agents.cellsub.CellSubscription`); ``bundles``: other
+        hosts' bundles of the service too."""
         from .cellsub import DEFAULT_WILDCARD_ABOVE, CellSubscription
 
         check_name("service", service)
         above = DEFAULT_WILDCARD_ABOVE if wildcard_above is None else wildcard_above
-        return CellSubscription(self, service, callback, flt, owner, wildcard_above=above, loopback=loopback)
+        return CellSubscription(
+            self, service, callback, flt, owner, wildcard_above=above, loopback=loopback, bundles=bundles
+        )
 
     # ------------------------------------------------------------------ hello
     def declare_hello(self, hello: Hello) -> zenoh.Queryable:

@@ -137,6 +137,7 @@ async def _host(args) -> dict:
         kw = {"neighbourhood": near, "cell_size": args.cell_size} if near else {}
         if near:
             kw["wildcard_cells"] = args.wildcard_cells
+            kw["bundle"] = args.bundle
         kw["vector"] = args.vector
         if args.crowd and not bare:
             kw["crowd"] = True
@@ -273,6 +274,9 @@ async def _host(args) -> dict:
             "pubcache": args.pubcache,
             "loopback": args.loopback,
             "wildcard_cells": args.wildcard_cells,
+            "bundle": args.bundle,
+            "bundles_sent": host.services.bundles_sent,
+            "bundled": host.services.bundled_messages,
             "mode": args.mode,
             "form": "near" if near else "all",
             "startup_s": round(startup, 1),
@@ -346,6 +350,7 @@ def _run_host(
             cmd += ["--host-timeout", str(args.host_timeout), "--wildcard-cells", str(args.wildcard_cells)]
             cmd += [] if args.pubcache else ["--no-pubcache"]
             cmd += [] if args.loopback else ["--no-loopback"]
+            cmd += ["--bundle"] if args.bundle else []
             cmd += [] if args.steady_gc else ["--no-steady-gc"]
             procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT))
             if mode == "bare" and k == 0:
@@ -378,7 +383,16 @@ def _run_host(
         r = results[0]
     else:
         r = dict(results[0])
-        for key in ("publish_per_s", "deliver_per_s", "delivered", "expected", "host_cpu", "host_cores_rt"):
+        for key in (
+            "publish_per_s",
+            "deliver_per_s",
+            "delivered",
+            "expected",
+            "host_cpu",
+            "host_cores_rt",
+            "bundles_sent",
+            "bundled",
+        ):
             if r.get(key) is not None:
                 r[key] = round(sum(x[key] for x in results), 2)
         for key in ("startup_s", "control_load", "overrun_pct"):
@@ -518,6 +532,11 @@ def main() -> None:
         dest="pubcache",
         action="store_false",
         help="near form: every broadcast a Session.put instead of a cached publisher per agent and cell (as before)",
+    )
+    ap.add_argument(
+        "--bundle",
+        action="store_true",
+        help="near form: each host puts its agents' broadcasts of ~10 ms as one sample (agents.services, bundles)",
     )
     ap.add_argument(
         "--no-loopback",

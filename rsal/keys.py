@@ -41,6 +41,7 @@ __all__ = [
     "AGENTS_PREFIX",
     "SVC_PREFIX",
     "check_name",
+    "is_name",
     "agent_key",
     "service_key",
     "HOSTS_PREFIX",
@@ -68,6 +69,11 @@ def __getattr__(name: str):
 
 
 _NAME = re.compile(r"^[A-Za-z0-9_\-.]+$")  # no '/', '*', '$', '?', '#', ':' and no spaces
+
+
+def is_name(value: object) -> bool:
+    """True when ``value`` is a valid name (:func:`check_name`'s rule), without raising."""
+    return type(value) is str and _NAME.match(value) is not None
 
 
 def check_name(kind: str, value: str) -> str:

@@ -382,16 +382,21 @@ def test_hundred_robots_sixty_seconds(procs, sim_time, tmp_path):
 
 # ---------------------------------------------------------------------------- neighbourhood
 @pytest.mark.parametrize(
-    "crowd, wildcard", [(False, 64), (True, 64), (True, 0)], ids=["proxies", "crowd", "crowd-cell-subscribers"]
+    "crowd, wildcard, bundle",
+    [(False, 64, False), (True, 64, False), (True, 0, False), (True, 64, True)],
+    ids=["proxies", "crowd", "crowd-cell-subscribers", "crowd-bundled"],
 )
-def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, sim_time, tmp_path, crowd, wildcard):
+def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(
+    procs, sim_time, tmp_path, crowd, wildcard, bundle
+):
     """16 robots 2.5 m apart (gps: their position2d is the true pose), neighbourhood 3 m in cells
     of 1.5 m: the monitor's ground-truth verdict has 100 % delivery within the radius; no message
     reached a receiver farther than the reach of its cells; some broadcasts were out of every
     cell's reach (the scoping works) and robots crossed cell borders. Both with the robots' device
     proxies and through the simulator's crowd device (``crowd: true``, the ``thousand`` app's path);
     the host's ~100 cells through one wildcard subscriber (``wildcard_cells`` 64, the default) and
-    through a subscriber per cell (0)."""
+    through a subscriber per cell (0); and with the host's broadcasts bundled (``bundle: true``, the
+    ``thousand`` app's: the judge takes them apart)."""
     from agents.cells import cell_of
 
     n, radius, cell, duration = 16, 3.0, 1.5, 20.0
@@ -413,6 +418,7 @@ def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, s
                     cell_size=cell,
                     crowd=crowd,
                     wildcard_cells=wildcard,
+                    bundle=bundle,
                 )
                 for i in range(n)
             ]
@@ -425,9 +431,15 @@ def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(procs, s
             await _until(lambda: mon.verdict is not None, duration * 4 + 120, "the monitor's verdict")
             cells = agents[0]._hub._cells
             form = (len(cells.cells), cells.subscribers, cells.wildcard)
-            return mon, agents, agents[0]._hub.rewatches, agents[0].margin, form
+            sent = (host.services.bundles_sent, host.services.bundled_messages, host.services.publishers_declared)
+            return mon, agents, agents[0]._hub.rewatches, agents[0].margin, form, sent
 
-    mon, agents, rewatches, margin, (watched, subscribers, wild) = asyncio.run(run())
+    mon, agents, rewatches, margin, (watched, subscribers, wild), sent = asyncio.run(run())
+    bundles, bundled, declared = sent
+    if bundle:  # every broadcast went out in a bundle, several to a sample; none on its own key
+        assert declared == 0 and bundled >= sum(a.sent for a in agents) - n and bundles < bundled, sent
+    else:
+        assert bundles == bundled == 0 and declared > 0, sent
     print(f"\nthe host watched {watched} cells through {subscribers} subscriber(s)")
     assert watched > 64 and wild == bool(wildcard) and subscribers == (1 if wildcard else watched)
     v = mon.verdict

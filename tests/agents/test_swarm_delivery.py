@@ -46,6 +46,10 @@ def test_neighbourhood_arguments_are_checked():
         SwarmAgent("s0", robot="r0", neighbourhood=2.0, margin=-0.1)
     with pytest.raises(ValueError, match="neighbourhood"):
         SwarmMonitor("m", robots=2, neighbourhood=-3)
+    with pytest.raises(ValueError, match="bundle: true bundles cell broadcasts; give a neighbourhood"):
+        SwarmAgent("s0", robot="r0", bundle=True)
+    with pytest.raises(ValueError, match="bundle 'yes' must be true or false"):
+        SwarmAgent("s0", robot="r0", neighbourhood=2.0, bundle="yes")
 
 
 def _three(settle: float = 0.0) -> NeighbourhoodDelivery:

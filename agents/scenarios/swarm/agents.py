@@ -88,6 +88,9 @@ class SwarmAgent(RobotAgent):
     shared subscription, and every agent of a swarm the same R and cell size. A host that watches
     more than ``wildcard_cells`` cells (default 64; 0: never) holds one subscriber on every cell
     and drops the messages of the cells it does not watch itself (:mod:`agents.cellsub`).
+    ``bundle`` (default false; with a neighbourhood): the host puts its agents' broadcasts of each
+    ~10 ms as one sample (:mod:`agents.services`, "Bundles"), which every hub takes apart; for
+    crowds on an open fabric.
 
     ``vector`` (default true): with the shared subscription, the host's hub runs one vectorised
     behaviour step for all its swarm robots per control cycle (:class:`.vector.HostStep`, the same
@@ -125,6 +128,7 @@ class SwarmAgent(RobotAgent):
         vector: bool = True,
         crowd: bool = False,
         wildcard_cells: int = DEFAULT_WILDCARD_ABOVE,
+        bundle: bool = False,
     ):
         super().__init__(
             agent_id,
@@ -168,6 +172,11 @@ class SwarmAgent(RobotAgent):
                 f"agent {agent_id}: wildcard_cells {wildcard_cells!r} must be a whole number >= 0 (0: never)"
             )
         self.wildcard_cells = wildcard_cells
+        if not isinstance(bundle, bool):
+            raise ValueError(f"agent {agent_id}: bundle {bundle!r} must be true or false")
+        if bundle and not self.neighbourhood:
+            raise ValueError(f"agent {agent_id}: bundle: true bundles cell broadcasts; give a neighbourhood radius too")
+        self.bundle = bundle
         if self.neighbourhood and not self.shared:
             raise ValueError(f"agent {agent_id}: a neighbourhood needs the host's shared subscription (shared: true)")
         #: neighbourhood: the (sender, sequence number) pairs received (:mod:`.ledger`)
@@ -354,6 +363,7 @@ class SwarmAgent(RobotAgent):
                     self.report_every,
                     ledger.on_message,
                     wildcard_above=self.wildcard_cells,
+                    bundle=self.bundle,
                 )
             elif self.shared:
                 self._hub.listen(_account_shared)

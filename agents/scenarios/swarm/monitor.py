@@ -24,7 +24,7 @@ import numpy as np
 
 from agents.registry import agent_class
 from agents.runtime import Agent
-from agents.services import Message, Outcome, SendPosition, Subscription
+from agents.services import BundleSubscription, Message, Outcome, SendPosition, Subscription
 from rsal.client import Fabric
 from rsal.clock import clock
 
@@ -121,6 +121,7 @@ class SwarmMonitor(Agent):
         self.neighbourhood = float(neighbourhood)
         self.delivery = NeighbourhoodDelivery(self.robots, self.neighbourhood, settle) if neighbourhood else None
         self._sends: Subscription | None = None
+        self._bundles: BundleSubscription | None = None
         self._sent: deque[tuple[str, str, int, float]] = deque()  # from Zenoh's thread, for the loop
         self._all_reported: asyncio.Event | None = None  # set (on the loop) when every agent reported
 
@@ -139,6 +140,9 @@ class SwarmMonitor(Agent):
                 arrival=True,
                 on_thread=True,  # every broadcast of the swarm: no loop wake-up for each
             )
+            self._bundles = BundleSubscription(
+                services, SendPosition.SERVICE, self._on_bundle, self.id, on_thread=True
+            )  # the broadcasts of hosts that bundle them (agents.services)
 
     def _on_send(self, msg: Message, arrived: float) -> None:  # Zenoh's thread
         # the send time is when the broadcast reached this session (Zenoh's thread), not when the
@@ -147,6 +151,10 @@ class SwarmMonitor(Agent):
         seq = sequence(msg.conversation)
         if seq is not None:
             self._sent.append((msg.sender, msg.body.robot, seq, arrived))  # atomic: drained by the loop
+
+    def _on_bundle(self, entries: list[tuple[str, Message]], arrived: float) -> None:  # Zenoh's thread
+        for _cell, msg in entries:
+            self._on_send(msg, arrived)
 
     def account_sends(self) -> None:  # the host's loop
         """Account the broadcasts queued by :meth:`_on_send` (each sample does; call it before
@@ -312,5 +320,7 @@ class SwarmMonitor(Agent):
     async def killed(self) -> None:
         if self._sends is not None:
             self._sends.close()
+        if self._bundles is not None:
+            self._bundles.close()
         if self.fabric is not None:
             self.fabric.close()
