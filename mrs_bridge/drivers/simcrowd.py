@@ -115,9 +115,12 @@ class CrowdView:
         dr = w.drives
         pose = np.array(dr.odom[r], dtype=np.float64)
         pose[:, 2] = wrap(pose[:, 2])
-        for i in self._gps:
-            if not gone[i]:
-                pose[i] = w.get_pose(robots[i].model)
+        if self._gps:  # ground truth: the world's poses after its last step, by row (World.get_pose's values)
+            g = np.asarray(self._gps, dtype=np.int64)
+            g = g[~gone[g]]
+            truth = np.asarray(w.poses, dtype=np.float64)[r[g]]
+            pose[g, :2] = truth[:, :2]
+            pose[g, 2] = wrap(truth[:, 2])
         vel = np.array(dr.vel[r], dtype=np.float64)
         stall = np.asarray(dr.stall[r], dtype=np.float32)
         pose[gone] = np.nan  # removed at run time: its row says so
