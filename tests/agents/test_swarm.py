@@ -446,7 +446,7 @@ def test_neighbourhood_swarm_delivers_within_the_radius_on_ground_truth(
     print(f"\nneighbourhood swarm n={n} r={radius} cell={cell}: {v.text}; rewatches={rewatches}")
     assert v.ok and f"delivery within {radius:g} m 100.0 %" in v.text, v.text
     d = mon.delivery
-    r = d.result(mon.stats)
+    r = d.result(mon.reports())
     assert r.expected == r.received > 100 and r.monitor_missed == 0
     reach = radius + margin + math.sqrt(2) * cell + 0.3  # a receiver's cells reach no farther (0.3: sampling)
     ranges = {a.id: a.ranges for a in agents}

@@ -37,6 +37,30 @@ def test_receiver_keeps_sequence_ranges_in_order_and_joins_them():
     assert "ranges" not in SwarmAgent("s9", robot="r9").stats()  # all-to-all: no ranges
 
 
+def test_published_stats_carry_only_what_is_new_and_the_judge_adds_the_parts_up():
+    a = SwarmAgent("s0", robot="r0", neighbourhood=3.0)
+    mon = SwarmMonitor("m", robots=["r0"], neighbourhood=3.0)
+    sent = []
+    for batch in ((0, 1, 2, 5), (3, 4, 9), (), (6, 7, 8, 2)):  # a late message, an empty part, a repeat
+        for seq in batch:
+            a.receive(_msg("s1", seq))
+        body = a.stats(part=True)
+        assert "ranges" not in body and body["part"] == len(sent)
+        sent.append(body)
+    assert [b["new_ranges"] for b in sent] == [{"s1": [0, 2, 5, 5]}, {"s1": [3, 4, 9, 9]}, {}, {"s1": [2, 2, 6, 8]}]
+    for body in sent:
+        mon._on_stats(Message("swarm_stats", "s0", "x", time.time(), body))
+    whole = mon.reports()["s0"]["ranges"]["s1"]
+    assert set(expand_ranges(whole).tolist()) == set(range(10)) and a.ranges == {"s1": [0, 9]}
+    assert mon.parts_lost == 0
+    a.receive(_msg("s1", 10))
+    a.stats(part=True)  # part 4 never reaches the judge
+    a.receive(_msg("s1", 11))
+    mon._on_stats(Message("swarm_stats", "s0", "x", time.time(), a.stats(part=True)))
+    assert mon.parts_lost == 1
+    assert "1 swarm_stats part(s) never came" in mon.judge(10.0, final=False).text
+
+
 def test_neighbourhood_arguments_are_checked():
     with pytest.raises(ValueError, match="neighbourhood"):
         SwarmAgent("s0", robot="r0", neighbourhood=-1)

@@ -60,12 +60,26 @@ class Received:
         self._keys = np.zeros(0, dtype=np.int64)
         self._new: list[np.ndarray] = []
         self._one: list[int] = []  # single messages (Received.add), merged with the batches
+        self._delta: list[np.ndarray] = []  # what came since the last take_new (add's singles included)
+        self._delta_one: list[int] = []
 
     def add(self, sender: str, seq: int) -> None:
-        self._one.append((code(sender) << _SEQ_BITS) | seq)
+        k = (code(sender) << _SEQ_BITS) | seq
+        self._one.append(k)
+        self._delta_one.append(k)
 
     def add_keys(self, keys: np.ndarray) -> None:
         self._new.append(keys)
+        self._delta.append(keys)
+
+    def take_new(self) -> dict[str, list[int]]:
+        """What was added since the last call, as :meth:`ranges` gives it (the sum of these parts
+        is :meth:`ranges`): a report of the new keys costs what they are, not the whole set."""
+        if not self._delta and not self._delta_one:
+            return {}
+        k = np.unique(np.concatenate([*self._delta, np.asarray(self._delta_one, dtype=np.int64)]))
+        self._delta, self._delta_one = [], []
+        return _ranges(k)
 
     def keys(self) -> np.ndarray:
         if self._new or self._one:
@@ -92,22 +106,26 @@ class Received:
 
     def ranges(self) -> dict[str, list[int]]:
         """Sender id -> the sequence numbers received as flat ranges ``[first0, last0, ...]``."""
-        k = self.keys()
-        if not len(k):
-            return {}
-        cut = np.nonzero(np.diff(k) != 1)[0]
-        starts = k[np.r_[0, cut + 1]]
-        ends = k[np.r_[cut, len(k) - 1]]
-        flat = np.empty(2 * len(starts), dtype=np.int64)
-        flat[0::2] = starts & _SEQ_MASK
-        flat[1::2] = ends & _SEQ_MASK
-        senders = starts >> _SEQ_BITS  # sorted: each sender's runs are adjacent
-        b = np.r_[0, np.nonzero(np.diff(senders))[0] + 1, len(senders)]
-        fl = flat.tolist()
-        return {
-            _names[c]: fl[2 * i : 2 * j]
-            for c, i, j in zip(senders[b[:-1]].tolist(), b[:-1].tolist(), b[1:].tolist(), strict=True)
-        }
+        return _ranges(self.keys())
+
+
+def _ranges(k: np.ndarray) -> dict[str, list[int]]:
+    """Sorted unique keys as sender id -> flat inclusive sequence ranges ``[first0, last0, ...]``."""
+    if not len(k):
+        return {}
+    cut = np.nonzero(np.diff(k) != 1)[0]
+    starts = k[np.r_[0, cut + 1]]
+    ends = k[np.r_[cut, len(k) - 1]]
+    flat = np.empty(2 * len(starts), dtype=np.int64)
+    flat[0::2] = starts & _SEQ_MASK
+    flat[1::2] = ends & _SEQ_MASK
+    senders = starts >> _SEQ_BITS  # sorted: each sender's runs are adjacent
+    b = np.r_[0, np.nonzero(np.diff(senders))[0] + 1, len(senders)]
+    fl = flat.tolist()
+    return {
+        _names[c]: fl[2 * i : 2 * j]
+        for c, i, j in zip(senders[b[:-1]].tolist(), b[:-1].tolist(), b[1:].tolist(), strict=True)
+    }
 
 
 @dataclass

@@ -108,6 +108,9 @@ class SwarmMonitor(Agent):
         self.await_reports = bool(await_reports)
         self.log_every = float(log_every)
         self.stats: dict[str, dict] = {}  # sender -> its latest swarm_stats body
+        self._parts: dict[str, list[dict]] = {}  # sender -> the new_ranges of its parts so far
+        self._next_part: dict[str, int] = {}
+        self.parts_lost = 0  # swarm_stats parts that never came (their ranges are missing)
         self.window_from: float | None = None  # wall time the judged run began (every agent reported)
         self.base: dict[str, LatencyHistogram] = {}  # sender -> its latencies at its first report of the judged run
         self.samples = 0
@@ -173,6 +176,11 @@ class SwarmMonitor(Agent):
                 except (TypeError, ValueError) as e:
                     log.warning("%s: ignored bad swarm_stats from %s: %s", self.id, msg.sender, e)
                     return
+            part, new = msg.body.get("part"), msg.body.get("new_ranges")
+            if isinstance(part, int) and isinstance(new, dict):  # what came since its previous part
+                self.parts_lost += max(0, part - self._next_part.get(msg.sender, 0))
+                self._next_part[msg.sender] = part + 1
+                self._parts.setdefault(msg.sender, []).append(new)
             self.stats[msg.sender] = msg.body
             if len(self.stats) == len(self.robots) and self._all_reported is not None:
                 self._all_reported.set()
@@ -231,6 +239,22 @@ class SwarmMonitor(Agent):
         self.closest = min(self.closest, float(nn.min()))
         self.spread.append((t, float(nn.mean())))
 
+    def reports(self) -> dict[str, dict]:
+        """Each agent's latest ``swarm_stats`` with ``ranges``: everything it received, from its
+        parts' ``new_ranges`` added up (or its own ``ranges``, if it sent them whole)."""
+        out = {}
+        for sender, body in self.stats.items():
+            parts = self._parts.get(sender)
+            if parts and "ranges" not in body:
+                ranges: dict[str, list] = {}
+                for p in parts:
+                    for s, flat in p.items():
+                        if isinstance(flat, list):
+                            ranges.setdefault(s, []).extend(flat)
+                body = {**body, "ranges": ranges}
+            out[sender] = body
+        return out
+
     def merged(self) -> tuple[int, int, LatencyHistogram, int]:
         """(received, expected, latency histogram, reporting agents) over the latest stats; the
         latencies of an agent that reported in the judged run count from its first report there."""
@@ -253,7 +277,7 @@ class SwarmMonitor(Agent):
         got, want, hist, reporting = self.merged()
         nd: Delivery | None = None
         if self.delivery is not None:  # ground truth within the radius (final: the whole run)
-            nd = self.delivery.result(self.stats) if final else Delivery()
+            nd = self.delivery.result(self.reports()) if final else Delivery()
             got, want = nd.received, nd.expected
         delivery = 100.0 * got / want if want else 0.0
         p99 = 1000.0 * hist.quantile(0.99) if hist.n else math.inf
@@ -265,6 +289,8 @@ class SwarmMonitor(Agent):
             problems.append(f"delivery {delivery:.2f} % < {self.min_delivery:g} %")
             if nd is not None and nd.missing:
                 problems.append("missing (receiver, sender, seq, m): " + ", ".join(map(str, nd.missing)))
+        if self.parts_lost:
+            problems.append(f"{self.parts_lost} swarm_stats part(s) never came (their receptions are not counted)")
         if nd is not None and nd.monitor_missed:
             problems.append(f"the monitor itself missed {nd.monitor_missed} broadcast(s)")
         if not p99 <= self.max_p99_ms:
