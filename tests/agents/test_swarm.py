@@ -149,6 +149,35 @@ def test_monitor_counts_latency_from_each_agents_first_report_of_the_judged_run(
     assert v.ok and "p99 latency 5 ms" in v.text, v.text  # the upper edge of 4 ms's bin
 
 
+def test_monitor_judges_real_time_and_the_hosts_control_overruns_of_the_judged_run():
+    m = SwarmMonitor("mon", robots=2, duration=10, min_rtf=0.95, max_overrun_pct=5)
+    hists = {"s0": LatencyHistogram(), "s1": LatencyHistogram()}
+
+    def report(sender: str, loop: str, cycles: int, overruns: int) -> None:
+        hists[sender].add(0.004)  # a delivery between reports: the judged run has latencies
+        body = {"received": 1, "expected": 1, "latency": hists[sender].to_dict()}
+        body["loop"] = {"id": loop, "cycles": cycles, "overruns": overruns}
+        m._on_stats(Message(STATS_SERVICE, sender, "", 0.0, body))
+
+    report("s0", "hostA:1", 100, 90)  # start-up's overruns, before the judged run
+    m.window_from = time.time()
+    report("s0", "hostA:1", 200, 95)  # each loop's first report of the judged run: its base
+    report("s1", "hostB:2", 50, 0)
+    report("s0", "hostA:1", 500, 101)  # 300 cycles, 6 overruns
+    report("s1", "hostB:2", 350, 3)  # 300 cycles, 3 overruns
+    assert m.overrun_pct() == pytest.approx(100 * 9 / 600)
+    v = m.judge(10.0, wall=10.2)
+    assert v.ok and "0.98 x real time" in v.text and "overruns 1.5 %" in v.text, v.text
+    v = m.judge(10.0, wall=12.5)
+    assert not v.ok and "simulation at 0.80 x real time < 0.95" in v.text
+    report("s1", "hostB:2", 450, 40)  # 37 more overruns in 100 cycles
+    v = m.judge(10.0, wall=10.0)
+    assert not v.ok and "control overruns 6.6 % >= 5 %" in v.text, v.text
+    assert SwarmMonitor("m2", robots=1).judge(1.0).text.count("overruns") == 0  # no loop reported: not said
+    with pytest.raises(ValueError, match="min_rtf"):
+        SwarmMonitor("m3", robots=1, min_rtf=-1)
+
+
 def test_monitor_opens_the_judged_run_when_the_last_agent_reports_and_skips_a_bad_first_report():
     m = SwarmMonitor("mon", robots=2, duration=10, startup_timeout=30)
     good = {"received": 1, "expected": 1, "latency": LatencyHistogram().to_dict()}

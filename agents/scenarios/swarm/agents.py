@@ -35,7 +35,9 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import os
 import random
+import socket
 import time
 from collections.abc import Sequence
 
@@ -318,7 +320,16 @@ class SwarmAgent(RobotAgent):
             "senders": len(self.senders),
             "board": len(self.board),
             "latency": self.latency.to_dict(),
+            **self._loop_figures(),
         }
+
+    def _loop_figures(self) -> dict:
+        """``loop``: its host's shared control loop (one per process): ``id``, ``cycles`` run and
+        ``overruns`` (cycles that ended after their period), for the judge's overrun share."""
+        hub = self._hub
+        if hub is None:
+            return {}
+        return {"loop": {"id": _LOOP_ID, "cycles": hub.cycles, "overruns": hub.overruns}}
 
     # ------------------------------------------------------------------ lifecycle
     def configure(self, robot: Pioneer) -> None:
@@ -536,6 +547,10 @@ class SwarmAgent(RobotAgent):
             pct = 100.0 * got / want if want else 100.0
             heard = f"received {self.received} from {len(self.senders)} sender(s), delivery {pct:.1f} %"
         return f"{super().status()}  {heard}, p99 {1000 * self.latency.quantile(0.99):.1f} ms"
+
+
+#: this process's control loop, as swarm_stats name it (one hub per host process)
+_LOOP_ID = f"{socket.gethostname()}:{os.getpid()}"
 
 
 def first_due(agent_id: str, now: float, report_every: float, stats_every: float) -> tuple[float, float]:

@@ -10,8 +10,9 @@ the sequence numbers say were sent: the difference is the losses), ``senders`` i
 reception began; the figures are complete up to ``t``), ``part`` (int, 0, 1, 2, ... per agent) and
 ``new_ranges``: sender id -> the sequence numbers received since the previous part, as flat
 inclusive ranges ``[first0, last0, first1, last1, ...]``; the parts together are everything the
-agent received (a report costs what is new, not the whole run). A ``send_position`` broadcast's
-conversation id is ``p<sequence>``.
+agent received (a report costs what is new, not the whole run). An agent on a host's shared
+control loop adds ``loop``: ``id`` (host:pid), ``cycles`` and ``overruns`` of that loop so far. A
+``send_position`` broadcast's conversation id is ``p<sequence>``.
 """
 
 __all__ = ["STATS_SERVICE"]

@@ -85,6 +85,8 @@ class SwarmMonitor(Agent):
         neighbourhood: float = 0.0,
         settle: float = 1.0,
         await_reports: bool = True,
+        min_rtf: float = 0.0,
+        max_overrun_pct: float | None = None,
     ):
         super().__init__(agent_id, period=sample_every, robot=robot)
         if isinstance(robots, bool) or not isinstance(robots, (int, list, tuple)):
@@ -103,6 +105,13 @@ class SwarmMonitor(Agent):
         self.min_dist = 2.0 * float(radius) - float(tolerance)
         self.min_delivery = float(min_delivery)
         self.max_p99_ms = float(max_p99_ms)
+        for name, v in (("min_rtf", min_rtf), ("max_overrun_pct", max_overrun_pct)):
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0):
+                raise ValueError(f"agent {agent_id}: {name} {v!r} must be a number >= 0")
+        self.min_rtf = float(min_rtf)
+        self.max_overrun_pct = None if max_overrun_pct is None else float(max_overrun_pct)
+        self.loops: dict[str, tuple[int, int]] = {}  # control loop id -> its latest (cycles, overruns)
+        self.loop_base: dict[str, tuple[int, int]] = {}  # ... at its first report of the judged run
         self.sim_node = simulation
         self.startup_timeout = float(startup_timeout)
         self.await_reports = bool(await_reports)
@@ -181,6 +190,13 @@ class SwarmMonitor(Agent):
                 self.parts_lost += max(0, part - self._next_part.get(msg.sender, 0))
                 self._next_part[msg.sender] = part + 1
                 self._parts.setdefault(msg.sender, []).append(new)
+            loop = msg.body.get("loop")
+            if isinstance(loop, dict) and isinstance(loop.get("id"), str):
+                c, o = loop.get("cycles"), loop.get("overruns")
+                if isinstance(c, int) and isinstance(o, int):
+                    self.loops[loop["id"]] = (c, o)
+                    if self.window_from is not None:
+                        self.loop_base.setdefault(loop["id"], (c, o))
             self.stats[msg.sender] = msg.body
             if len(self.stats) == len(self.robots) and self._all_reported is not None:
                 self._all_reported.set()
@@ -273,7 +289,19 @@ class SwarmMonitor(Agent):
                 log.warning("%s: ignored bad swarm_stats: %s", self.id, e)
         return got, want, hist, len(self.stats)
 
-    def judge(self, elapsed: float, final: bool = True) -> Outcome:
+    def overrun_pct(self) -> float | None:
+        """The share of the agents' control-loop cycles in the judged run that overran their
+        period, in % (over every host's loop that reported twice in it), or None."""
+        cycles = over = 0
+        for lid, (c0, o0) in self.loop_base.items():
+            c, o = self.loops[lid]
+            cycles += c - c0
+            over += o - o0
+        return 100.0 * over / cycles if cycles > 0 else None
+
+    def judge(self, elapsed: float, final: bool = True, wall: float | None = None) -> Outcome:
+        """The verdict after ``elapsed`` simulated seconds of the judged run (``wall``: the wall
+        seconds they took, for the real-time factor)."""
         got, want, hist, reporting = self.merged()
         nd: Delivery | None = None
         if self.delivery is not None:  # ground truth within the radius (final: the whole run)
@@ -295,6 +323,12 @@ class SwarmMonitor(Agent):
             problems.append(f"the monitor itself missed {nd.monitor_missed} broadcast(s)")
         if not p99 <= self.max_p99_ms:
             problems.append(f"p99 latency {_ms(p99)} ms > {self.max_p99_ms:g} ms")
+        rtf = elapsed / wall if wall and wall > 0 else None
+        if rtf is not None and rtf < self.min_rtf:
+            problems.append(f"simulation at {rtf:.2f} x real time < {self.min_rtf:g}")
+        overrun = self.overrun_pct()
+        if self.max_overrun_pct is not None and overrun is not None and overrun >= self.max_overrun_pct:
+            problems.append(f"control overruns {overrun:.1f} % >= {self.max_overrun_pct:g} %")
         if reporting < n:
             problems.append(f"stats from {reporting} of {n} agents")
         s0 = self.spread[0][1] if self.spread else math.nan
@@ -309,6 +343,10 @@ class SwarmMonitor(Agent):
             f"{n} robots {elapsed:.0f} s: {'no overlap' if not self.overlaps else f'{self.overlaps} overlap(s)'}, "
             f"{judged}, p99 latency {_ms(p99)} ms, spread {s0:.1f} -> {s1:.1f} m"
         )
+        if rtf is not None:
+            text += f", {rtf:.2f} x real time"
+        if overrun is not None:
+            text += f", overruns {overrun:.1f} %"
         if problems:
             text += " -- " + "; ".join(problems)
         return Outcome("verdict", "swarm", text, ok=not problems, final=True)
@@ -317,6 +355,7 @@ class SwarmMonitor(Agent):
         sim = await asyncio.to_thread(self._simulation)
         await self._await_reports()
         t0 = sim.latest.t
+        wall0 = time.monotonic()
         next_report = clock().now() + self.log_every
         while True:
             started = clock().now()
@@ -334,13 +373,13 @@ class SwarmMonitor(Agent):
                     self.delivery.truth(0.5 * (w0 + w1), xy)
             if t - t0 >= self.duration:
                 self.account_sends()
-                self.verdict = self.judge(t - t0)
+                self.verdict = self.judge(t - t0, wall=time.monotonic() - wall0)
                 self.publish(Outcome.SERVICE, self.verdict)
                 log.info("%s: %s", self.id, self.verdict.text)
                 return
             if clock().now() >= next_report:
                 next_report += self.log_every
-                log.info("%s: %s", self.id, self.judge(t - t0, final=False).text)
+                log.info("%s: %s", self.id, self.judge(t - t0, final=False, wall=time.monotonic() - wall0).text)
             await clock().asleep_until(started + self.sample_every)
 
     async def killed(self) -> None:
