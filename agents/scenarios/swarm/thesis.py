@@ -412,8 +412,8 @@ class ThesisSwarmMonitor(SwarmMonitor):
         rw = sum(int(v[1]) for k, v in per.items() if k in watched)
         return rr, rw
 
-    def judge(self, elapsed: float, final: bool = True) -> Outcome:
-        base = super().judge(elapsed, final)
+    def judge(self, elapsed: float, final: bool = True, wall: float | None = None) -> Outcome:
+        base = super().judge(elapsed, final, wall)
         share, p95, worst = self.localization()
         rr, rw = self.contact_counts()
         problems = []
